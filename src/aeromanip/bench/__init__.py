@@ -1,0 +1,1 @@
+"""Benchmarks behind ``aeromanip bench`` (and the scripts in ``benchmarks/``)."""

@@ -1,0 +1,133 @@
+"""Typed access to TOML tables with errors that name the key path.
+
+Every configuration reader in aeromanip (robots, scenarios) goes through ``Table`` so
+that an unknown key, a missing key or a wrong type is reported the same way.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from aeromanip.errors import ConfigError
+
+_MISSING = object()
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file; a missing or malformed file is a ``ConfigError``."""
+    p = Path(path)
+    try:
+        with p.open("rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: file not found") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{p}: malformed TOML: {e}") from None
+
+
+class Table:
+    """A read-only view of one TOML table that knows its key path and tracks used keys."""
+
+    def __init__(self, data: Mapping[str, Any], path: str = "") -> None:
+        if not isinstance(data, Mapping):
+            raise ConfigError(f"{path or '<root>'}: must be a table, got {type(data).__name__}")
+        self.data = data
+        self.path = path
+        self._used: set[str] = set()
+
+    def key(self, name: str) -> str:
+        """The full key path of ``name`` in this table."""
+        return f"{self.path}.{name}" if self.path else name
+
+    def has(self, name: str) -> bool:
+        """Whether the table holds ``name``."""
+        return name in self.data
+
+    def raw(self, name: str, default: Any = _MISSING) -> Any:
+        """The value as stored; a missing key without default is an error."""
+        self._used.add(name)
+        if name not in self.data:
+            if default is _MISSING:
+                raise ConfigError(f"{self.key(name)}: missing required key")
+            return default
+        return self.data[name]
+
+    def float(self, name: str, default: Any = _MISSING, *, finite: bool = True) -> float:
+        """A number (int or float); ``finite`` rejects inf/nan."""
+        v = self.raw(name, default)
+        return to_float(v, self.key(name), finite=finite)
+
+    def int(self, name: str, default: Any = _MISSING, *, minimum: int | None = None) -> int:
+        """An integer, optionally at least ``minimum``."""
+        v = self.raw(name, default)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise ConfigError(f"{self.key(name)}: expected an integer, got {v!r}")
+        if minimum is not None and v < minimum:
+            raise ConfigError(f"{self.key(name)}: must be >= {minimum}, got {v}")
+        return v
+
+    def str(self, name: str, default: Any = _MISSING, *, choices: tuple[str, ...] = ()) -> str:
+        """A string, optionally one of ``choices``."""
+        v = self.raw(name, default)
+        if not isinstance(v, str):
+            raise ConfigError(f"{self.key(name)}: expected a string, got {v!r}")
+        if choices and v not in choices:
+            raise ConfigError(f"{self.key(name)}: {v!r} is not one of {list(choices)}")
+        return v
+
+    def bool(self, name: str, default: Any = _MISSING) -> bool:
+        """A boolean."""
+        v = self.raw(name, default)
+        if not isinstance(v, bool):
+            raise ConfigError(f"{self.key(name)}: expected true or false, got {v!r}")
+        return v
+
+    def floats(
+        self, name: str, default: Any = _MISSING, *, size: int | None = None, finite: bool = True
+    ) -> tuple[float, ...]:
+        """A list of numbers, optionally of a given ``size``."""
+        v = self.raw(name, default)
+        return to_floats(v, self.key(name), size=size, finite=finite)
+
+    def table(self, name: str, default: Any = _MISSING) -> Table:
+        """A sub-table."""
+        v = self.raw(name, default)
+        return Table(v, self.key(name))
+
+    def tables(self, name: str, default: Any = _MISSING) -> list[Table]:
+        """An array of tables."""
+        v = self.raw(name, default)
+        if not isinstance(v, list):
+            raise ConfigError(f"{self.key(name)}: expected an array of tables, got {v!r}")
+        return [Table(item, f"{self.key(name)}[{i}]") for i, item in enumerate(v)]
+
+    def done(self) -> None:
+        """Raise on any key that was never read (a typo would otherwise pass silently)."""
+        unknown = sorted(set(self.data) - self._used)
+        if unknown:
+            raise ConfigError(f"{self.key(unknown[0])}: unknown key")
+
+
+def to_float(v: Any, path: str, *, finite: bool = True) -> float:
+    """Convert a TOML number to float or raise naming ``path``."""
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise ConfigError(f"{path}: expected a number, got {v!r}")
+    f = float(v)
+    if math.isnan(f) or (finite and math.isinf(f)):
+        raise ConfigError(f"{path}: must be a finite number, got {v!r}")
+    return f
+
+
+def to_floats(
+    v: Any, path: str, *, size: int | None = None, finite: bool = True
+) -> tuple[float, ...]:
+    """Convert a TOML array of numbers or raise naming ``path``."""
+    if not isinstance(v, list | tuple):
+        raise ConfigError(f"{path}: expected an array of numbers, got {v!r}")
+    if size is not None and len(v) != size:
+        raise ConfigError(f"{path}: expected {size} numbers, got {len(v)}")
+    return tuple(to_float(x, f"{path}[{i}]", finite=finite) for i, x in enumerate(v))

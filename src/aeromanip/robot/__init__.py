@@ -1,0 +1,1 @@
+"""Robot description (spec, TOML, URDF) and its CasADi kinematics."""

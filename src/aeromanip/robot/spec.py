@@ -1,0 +1,209 @@
+"""Robot description: the platform, the arm chain mounted below it, the end effector.
+
+Conventions (see DESIGN.md): SI units and radians; world ENU, body FLU. The arm is a
+chain of revolute joints described URDF-style: joint ``i`` has its origin (xyz, rpy)
+in the frame of its parent (the mount frame for the first joint, link ``i-1``
+otherwise), an axis in its own frame, and moves link ``i``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+from aeromanip.errors import ConfigError
+
+PLATFORM_DOFS: tuple[str, ...] = ("x", "y", "z", "yaw")
+"""Every platform DoF the NMPC may control, in state order."""
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Inertial:
+    """Mass [kg], centre of mass [m] in the link frame and inertia [kg m^2] about the CoM.
+
+    ``inertia`` is ``(ixx, iyy, izz, ixy, ixz, iyz)`` in the link frame.
+    """
+
+    mass: float
+    com: Vec3 = (0.0, 0.0, 0.0)
+    inertia: tuple[float, float, float, float, float, float] = (1e-5, 1e-5, 1e-5, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Joint:
+    """A revolute arm joint and the link it moves.
+
+    Attributes:
+        name: joint name (unique).
+        xyz, rpy: joint origin in the parent frame [m, rad] (URDF convention, fixed-axis XYZ).
+        axis: rotation axis in the joint frame (unit vector).
+        lower, upper: position limits [rad].
+        velocity: velocity limit [rad/s] (> 0).
+        link_name: name of the child link.
+        link: the child link's inertial properties.
+    """
+
+    name: str
+    xyz: Vec3
+    rpy: Vec3
+    axis: Vec3
+    lower: float
+    upper: float
+    velocity: float
+    link_name: str
+    link: Inertial
+
+
+@dataclass(frozen=True)
+class Platform:
+    """The multirotor: which DoFs the NMPC controls, the fixed values of the others, its body.
+
+    Attributes:
+        dofs: active DoFs, an ordered subset of ``("x", "y", "z", "yaw")``.
+        fixed: value of every inactive DoF [m or rad] (default 0).
+        mass: platform mass without the arm [kg].
+        inertia: principal inertia ``(ixx, iyy, izz)`` about the platform CoM [kg m^2].
+        arm_length: distance from the centre to each rotor [m] (used by physics).
+        velocity: speed limit per DoF [m/s or rad/s]; DoFs not named here are limited to 1.
+    """
+
+    dofs: tuple[str, ...]
+    fixed: Mapping[str, float] = field(default_factory=dict)
+    mass: float = 2.0
+    inertia: Vec3 = (0.03, 0.03, 0.05)
+    arm_length: float = 0.3
+    velocity: Mapping[str, float] = field(default_factory=dict)
+
+    def velocity_limit(self, dof: str) -> float:
+        """Speed limit of one platform DoF [m/s or rad/s]."""
+        return float(self.velocity.get(dof, 1.0))
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """A UAM: platform + arm mounted at ``mount_xyz/rpy`` in the body frame + end-effector frame.
+
+    The end-effector frame is fixed in the last link's frame at ``ee_xyz/ee_rpy``.
+    """
+
+    name: str
+    platform: Platform
+    joints: tuple[Joint, ...]
+    mount_xyz: Vec3 = (0.0, 0.0, 0.0)
+    mount_rpy: Vec3 = (0.0, 0.0, 0.0)
+    ee_xyz: Vec3 = (0.0, 0.0, 0.0)
+    ee_rpy: Vec3 = (0.0, 0.0, 0.0)
+    base_link: str = "base_link"
+    ee_link: str = "end_effector"
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+    @property
+    def n_platform(self) -> int:
+        """Number of active platform DoFs."""
+        return len(self.platform.dofs)
+
+    @property
+    def n_joints(self) -> int:
+        """Number of arm joints."""
+        return len(self.joints)
+
+    @property
+    def nx(self) -> int:
+        """NMPC state size: active platform DoFs + arm joints."""
+        return self.n_platform + self.n_joints
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """Names of the state entries, e.g. ``("x", "y", "z", "yaw", "q1", "q2", "q3")``."""
+        return self.platform.dofs + tuple(f"q{i + 1}" for i in range(self.n_joints))
+
+    @property
+    def arm_mass(self) -> float:
+        """Total arm mass [kg]."""
+        return sum(j.link.mass for j in self.joints)
+
+
+def _finite(value: float, path: str) -> None:
+    if not math.isfinite(value):
+        raise ConfigError(f"{path}: must be a finite number, got {value!r}")
+
+
+def _vec(value: Sequence[float], path: str) -> None:
+    if len(value) != 3:
+        raise ConfigError(f"{path}: must have 3 entries, got {len(value)}")
+    for i, v in enumerate(value):
+        _finite(v, f"{path}[{i}]")
+
+
+def validate(spec: RobotSpec) -> None:
+    """Check a spec; raise ``ConfigError`` naming the key path of the first problem."""
+    dofs = spec.platform.dofs
+    for i, d in enumerate(dofs):
+        if d not in PLATFORM_DOFS:
+            raise ConfigError(
+                f"platform.dofs[{i}]: unknown platform DoF {d!r} (choose from {PLATFORM_DOFS})"
+            )
+    if list(dofs) != [d for d in PLATFORM_DOFS if d in dofs]:
+        raise ConfigError(f"platform.dofs: must be unique and in the order {PLATFORM_DOFS}")
+    for k, v in spec.platform.fixed.items():
+        if k not in PLATFORM_DOFS:
+            raise ConfigError(f"platform.fixed.{k}: unknown platform DoF")
+        if k in dofs:
+            raise ConfigError(f"platform.fixed.{k}: DoF is active, it cannot also be fixed")
+        _finite(v, f"platform.fixed.{k}")
+    for k, v in spec.platform.velocity.items():
+        if k not in PLATFORM_DOFS:
+            raise ConfigError(f"platform.velocity.{k}: unknown platform DoF")
+        if not (v > 0 and math.isfinite(v)):
+            raise ConfigError(f"platform.velocity.{k}: must be a finite number > 0, got {v}")
+    if not spec.platform.mass > 0:
+        raise ConfigError(f"platform.mass: must be > 0, got {spec.platform.mass}")
+    _vec(spec.platform.inertia, "platform.inertia")
+    if min(spec.platform.inertia) <= 0:
+        raise ConfigError("platform.inertia: every entry must be > 0")
+    if not spec.platform.arm_length > 0:
+        raise ConfigError(f"platform.arm_length: must be > 0, got {spec.platform.arm_length}")
+    if not spec.joints:
+        raise ConfigError("joints: the arm needs at least one joint")
+    for key in ("mount_xyz", "mount_rpy", "ee_xyz", "ee_rpy"):
+        _vec(getattr(spec, key), key.replace("_", ".", 1))
+    link_names: set[str] = {spec.base_link, spec.ee_link}
+    joint_names: set[str] = set()
+    for i, j in enumerate(spec.joints):
+        p = f"joints[{i}]"
+        for key in ("xyz", "rpy", "axis"):
+            _vec(getattr(j, key), f"{p}.{key}")
+        norm = math.sqrt(sum(a * a for a in j.axis))
+        if norm < 1e-9:
+            raise ConfigError(f"{p}.axis: must be non-zero, got {list(j.axis)}")
+        if abs(norm - 1.0) > 1e-6:
+            raise ConfigError(f"{p}.axis: must be a unit vector, got norm {norm:.6g}")
+        if math.isnan(j.lower) or math.isnan(j.upper):
+            raise ConfigError(f"{p}.limits: must be numbers")
+        if j.lower > j.upper:
+            raise ConfigError(f"{p}.limits: lower {j.lower} is above upper {j.upper}")
+        if not (j.velocity > 0 and math.isfinite(j.velocity)):
+            raise ConfigError(f"{p}.velocity: must be a finite number > 0, got {j.velocity}")
+        if not (j.link.mass >= 0 and math.isfinite(j.link.mass)):
+            raise ConfigError(f"{p}.link.mass: must be >= 0, got {j.link.mass}")
+        _vec(j.link.com, f"{p}.link.com")
+        if len(j.link.inertia) != 6:
+            raise ConfigError(f"{p}.link.inertia: must be [ixx, iyy, izz, ixy, ixz, iyz]")
+        if min(j.link.inertia[:3]) < 0:
+            raise ConfigError(f"{p}.link.inertia: diagonal entries must be >= 0")
+        for nm, key, names in (
+            (j.name, "name", joint_names),
+            (j.link_name, "link.name", link_names),
+        ):
+            if not nm:
+                raise ConfigError(f"{p}.{key}: must be a non-empty string")
+            if nm in names:
+                raise ConfigError(f"{p}.{key}: name {nm!r} is used twice")
+            names.add(nm)
+    if spec.arm_mass <= 0:
+        raise ConfigError("joints[*].link.mass: the arm must have a positive total mass")
