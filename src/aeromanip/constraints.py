@@ -1,0 +1,176 @@
+"""NMPC constraints (paper Sec. V): state/command bounds, self-collision, user constraints.
+
+State bounds and path constraints apply at stages ``1..N`` (the state at stage 0 is the
+measured one); command bounds at stages ``0..N-1``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from aeromanip.errors import ConfigError, InfeasibleProblemError
+from aeromanip.robot.spec import RobotSpec
+from aeromanip.tasks.base import Stage
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """Box bounds on the state ``x`` [m, rad] and the command ``u = dx/dt`` [m/s, rad/s].
+
+    Unbounded entries are ``-inf``/``inf``.
+    """
+
+    names: tuple[str, ...]
+    x_lower: np.ndarray
+    x_upper: np.ndarray
+    u_lower: np.ndarray
+    u_upper: np.ndarray
+
+    def __post_init__(self) -> None:
+        for kind in ("x", "u"):
+            lo, hi = getattr(self, f"{kind}_lower"), getattr(self, f"{kind}_upper")
+            if lo.shape != (len(self.names),) or hi.shape != (len(self.names),):
+                raise ConfigError(f"bounds.{kind}: expected {len(self.names)} entries")
+            for i, n in enumerate(self.names):
+                if np.isnan(lo[i]) or np.isnan(hi[i]):
+                    raise ConfigError(f"bounds.{kind}.{n}: must not be NaN")
+                if lo[i] > hi[i]:
+                    raise InfeasibleProblemError(
+                        f"bounds.{kind}.{n}: lower {lo[i]:.6g} is above upper {hi[i]:.6g}"
+                    )
+
+    @classmethod
+    def from_robot(
+        cls,
+        spec: RobotSpec,
+        *,
+        joint_limits: bool = True,
+        velocity_limits: bool = True,
+        platform_box: Mapping[str, Sequence[float]] | None = None,
+    ) -> Bounds:
+        """Joint position limits and velocity limits from the robot, plus a platform box.
+
+        ``platform_box`` maps active platform DoFs to ``(lower, upper)`` [m or rad].
+        """
+        names = spec.state_names
+        n = len(names)
+        xl, xu = np.full(n, -np.inf), np.full(n, np.inf)
+        ul, uu = np.full(n, -np.inf), np.full(n, np.inf)
+        npf = spec.n_platform
+        for i, j in enumerate(spec.joints):
+            if joint_limits:
+                xl[npf + i], xu[npf + i] = j.lower, j.upper
+            if velocity_limits:
+                ul[npf + i], uu[npf + i] = -j.velocity, j.velocity
+        for i, dof in enumerate(spec.platform.dofs):
+            if velocity_limits:
+                v = spec.platform.velocity_limit(dof)
+                ul[i], uu[i] = -v, v
+        for dof, box in (platform_box or {}).items():
+            if dof not in spec.platform.dofs:
+                raise ConfigError(
+                    f"platform_box.{dof}: not an active platform DoF of {spec.name!r} "
+                    f"(active: {list(spec.platform.dofs)})"
+                )
+            if len(box) != 2:
+                raise ConfigError(f"platform_box.{dof}: expected [lower, upper]")
+            i = spec.platform.dofs.index(dof)
+            xl[i], xu[i] = float(box[0]), float(box[1])
+        return cls(names, xl, xu, ul, uu)
+
+    def as_dict(self) -> dict[str, list[float]]:
+        """Finite bounds keyed like the run log columns: ``q1``, ``x``, ``u_q1``, ..."""
+        out = {}
+        for i, n in enumerate(self.names):
+            for prefix, lo, hi in (
+                ("", self.x_lower, self.x_upper),
+                ("u_", self.u_lower, self.u_upper),
+            ):
+                if np.isfinite(lo[i]) or np.isfinite(hi[i]):
+                    out[prefix + n] = [float(lo[i]), float(hi[i])]
+        return out
+
+    def violation(self, x: np.ndarray) -> float:
+        """How far ``x`` lies outside the state bounds (0 inside) [m or rad]."""
+        return float(max(np.max(self.x_lower - x), np.max(x - self.x_upper), 0.0))
+
+
+class PathConstraint:
+    """``lower <= expression(stage) <= upper`` at stages ``1..N``.
+
+    Subclass and implement ``expression``, or use ``UserConstraint`` with a callable.
+    """
+
+    name: str = "constraint"
+    lower: np.ndarray
+    upper: np.ndarray
+
+    def expression(self, stage: Stage) -> ca.SX:
+        """The constrained expression (a column vector)."""
+        raise NotImplementedError
+
+    def uses_command(self) -> bool:
+        """Whether the expression needs the command (then not applied at stage N)."""
+        return False
+
+
+class Clearance(PathConstraint):
+    """Self-collision avoidance (paper eq. 17): each point at least ``d_min`` [m] below the base.
+
+    ``points`` are names from ``Kinematics.point_names()`` (``joint1..jointN``, ``ee``);
+    by default every joint origin after the first and the end effector.
+    """
+
+    name = "clearance"
+
+    def __init__(self, d_min: float = 0.1, points: Sequence[str] | None = None) -> None:
+        if not np.isfinite(d_min):
+            raise ConfigError(f"clearance.d_min: must be finite, got {d_min}")
+        self.d_min = float(d_min)
+        self.points = None if points is None else list(points)
+
+    def expression(self, stage: Stage) -> ca.SX:
+        """Depth of each point below the base [m]."""
+        f = stage.kin.clearance(self.points)
+        n = f.size1_out(0)
+        self.lower, self.upper = np.full(n, self.d_min), np.full(n, np.inf)
+        return f(stage.x)
+
+
+class UserConstraint(PathConstraint):
+    """``lb <= fn(stage) <= ub`` for a user expression of the state (and command)."""
+
+    def __init__(
+        self,
+        name: str,
+        fn: Callable[[Stage], ca.SX],
+        lb: float | Sequence[float],
+        ub: float | Sequence[float],
+        *,
+        uses_command: bool = False,
+    ) -> None:
+        self.name = name
+        self.fn = fn
+        self._lb, self._ub = lb, ub
+        self._uses_command = uses_command
+
+    def expression(self, stage: Stage) -> ca.SX:
+        """``fn(stage)``, with bounds broadcast to its size."""
+        e = ca.vec(self.fn(stage))
+        n = e.numel()
+        self.lower = np.broadcast_to(np.asarray(self._lb, dtype=float), (n,)).copy()
+        self.upper = np.broadcast_to(np.asarray(self._ub, dtype=float), (n,)).copy()
+        bad = np.nonzero(self.lower > self.upper)[0]
+        if bad.size:
+            raise InfeasibleProblemError(
+                f"constraint {self.name!r}[{bad[0]}]: lower is above upper"
+            )
+        return e
+
+    def uses_command(self) -> bool:
+        """As declared by the user."""
+        return self._uses_command

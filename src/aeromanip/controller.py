@@ -1,0 +1,167 @@
+"""The receding-horizon controller: one verb, ``step(state, t) -> Command``.
+
+On a failed or over-budget solve it never raises: it applies the next command of the
+last valid plan (shifted by the steps elapsed since it was computed, clipped to the
+bounds) or, without one, stops (zero rates), and flags it in ``Command.status``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from aeromanip.errors import ConfigError, StateError
+from aeromanip.ocp import Problem
+from aeromanip.strategies import Hierarchical, LevelReport, StrategyResult, Weighted
+
+log = logging.getLogger(__name__)
+
+STATUSES = ("ok", "partial", "fallback", "stopped")
+
+
+@dataclass
+class Command:
+    """What the controller decided at one step.
+
+    Attributes:
+        u: command to apply now, ``dx/dt`` [m/s, rad/s] (nx,).
+        plan_x: predicted states (N+1, nx); plan_u: predicted commands (N, nx).
+        task_costs: weighted cost of each task over the horizon.
+        status: ``ok``; ``partial`` (a lower hierarchy level failed, the higher levels'
+            solution is applied); ``fallback`` (the previous plan is applied); ``stopped``.
+        message: why, when not ``ok``.
+        iterations, solve_time_s: solver effort (all levels).
+        levels: per-level reports (hierarchical) or one report (weighted).
+    """
+
+    u: np.ndarray
+    plan_x: np.ndarray
+    plan_u: np.ndarray
+    task_costs: dict[str, float]
+    status: str
+    message: str
+    iterations: int
+    solve_time_s: float
+    levels: list[LevelReport] = field(default_factory=list)
+
+
+class Controller:
+    """NMPC controller for a ``Problem``.
+
+    Args:
+        problem: tasks, constraints, horizon.
+        strategy: ``"weighted"`` or ``"hierarchical"``.
+        backend: NLP solver, ``"ipopt"`` or ``"fatrop"``.
+        solver_options: extra options for the backend.
+        hierarchy: options of ``Hierarchical`` (``mode``, ``rel_tol``, ``abs_tol``).
+        time_budget_s: a solve slower than this is treated as failed (None: no budget).
+    """
+
+    def __init__(
+        self,
+        problem: Problem,
+        strategy: str = "weighted",
+        backend: str = "ipopt",
+        solver_options: Mapping[str, Any] | None = None,
+        hierarchy: Mapping[str, Any] | None = None,
+        time_budget_s: float | None = None,
+    ) -> None:
+        self.problem = problem
+        if strategy == "weighted":
+            if hierarchy:
+                raise ConfigError("hierarchy: options given but strategy is 'weighted'")
+            self.strategy: Weighted | Hierarchical = Weighted(problem, backend, solver_options)
+        elif strategy == "hierarchical":
+            self.strategy = Hierarchical(
+                problem, backend=backend, options=solver_options, **dict(hierarchy or {})
+            )
+        else:
+            raise ConfigError(f"strategy: {strategy!r} is not 'weighted' or 'hierarchical'")
+        self.strategy_name = strategy
+        self.time_budget_s = time_budget_s
+        self.nx = problem.kin.nx
+        self.reset()
+
+    def reset(self, u_prev: np.ndarray | None = None) -> None:
+        """Forget plans and warm starts; ``u_prev`` is the command applied so far (default 0)."""
+        self.u_prev = np.zeros(self.nx) if u_prev is None else self._vector(u_prev, "u_prev")
+        self._plan: tuple[np.ndarray, np.ndarray, int] | None = None  # X, U, steps since
+        self._guesses: list[np.ndarray] | None = None
+        for st in self.strategy.stages:
+            st.warm = None
+
+    def _vector(self, v: Any, what: str) -> np.ndarray:
+        a = np.asarray(v, dtype=float).ravel()
+        if a.shape != (self.nx,):
+            names = ", ".join(self.problem.robot.state_names)
+            raise StateError(f"{what}: expected {self.nx} values ({names}), got {a.size}")
+        bad = np.nonzero(~np.isfinite(a))[0]
+        if bad.size:
+            name = self.problem.robot.state_names[bad[0]]
+            raise StateError(f"{what}: {name} is not finite ({a[bad[0]]})")
+        return a
+
+    def _initial_guess(self, x0: np.ndarray) -> np.ndarray:
+        tr = self.strategy.transcription
+        N = self.problem.horizon
+        if self._plan is None:
+            X = np.repeat(x0[None, :], N + 1, axis=0)
+            U = np.zeros((N, self.nx))
+        else:
+            Xp, Up, _ = self._plan
+            X = np.vstack([Xp[1:], Xp[-1:]])
+            U = np.vstack([Up[1:], Up[-1:]])
+            X[0] = x0
+        return tr.pack(X, U, self.u_prev)
+
+    def step(self, state: Any, t: float) -> Command:
+        """Solve the NMPC at time ``t`` [s] from ``state`` and return the command to apply."""
+        x0 = self._vector(state, "state")
+        if not np.isfinite(t):
+            raise StateError(f"t: must be finite, got {t}")
+        tr = self.strategy.transcription
+        p = tr.parameters(x0, self.u_prev, self.problem.stage_params(t))
+        guess = self._initial_guess(x0)
+        res: StrategyResult = self.strategy.solve(p, [guess] * len(self.strategy.stages))
+        message = "" if res.status == "ok" else res.status
+        ok = res.success
+        if ok and self.time_budget_s is not None and res.solve_time_s > self.time_budget_s:
+            ok = False
+            message = (
+                f"over budget: {1e3 * res.solve_time_s:.1f} ms > {1e3 * self.time_budget_s:.1f} ms"
+            )
+        if ok:
+            X, U = tr.unpack(res.w)
+            costs = np.asarray(tr.stage_costs(res.w, p)).sum(axis=1)
+            task_costs = {
+                e.name: float(c) for e, c in zip(self.problem.entries, costs, strict=True)
+            }
+            status = "partial" if res.status.startswith("partial") else "ok"
+            self._plan = (X, U, 0)
+            u = U[0].copy()
+        else:
+            u, X, U, status = self._fallback(x0)
+            task_costs = {e.name: float("nan") for e in self.problem.entries}
+            log.warning("t=%.3f s: solve failed (%s); %s", t, message, status)
+        self.u_prev = u
+        return Command(
+            u, X, U, task_costs, status, message, res.iterations, res.solve_time_s, res.levels
+        )
+
+    def _fallback(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+        b = self.problem.bounds
+        N = self.problem.horizon
+        if self._plan is not None:
+            Xp, Up, age = self._plan
+            age += 1
+            if age < N:
+                self._plan = (Xp, Up, age)
+                u = np.clip(Up[age], b.u_lower, b.u_upper)
+                return u, Xp, Up, "fallback"
+            self._plan = None
+        X = np.repeat(x0[None, :], N + 1, axis=0)
+        return np.zeros(self.nx), X, np.zeros((N, self.nx)), "stopped"

@@ -1,0 +1,1 @@
+"""Closed-loop simulators: the ideal kinematic loop and full-dynamics physics (MuJoCo)."""

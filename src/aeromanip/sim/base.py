@@ -1,0 +1,33 @@
+"""The simulator interface the closed loop talks to.
+
+A simulator stands in for the robot and its inner loops: it receives the NMPC's command
+(rates ``u`` and the predicted plan) once per control period and reports the state the
+NMPC sees next. The kinematic simulator assumes a perfect inner loop (paper Sec. III-C);
+the physics simulator flies the full dynamics with a flight controller.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+
+class Simulator(ABC):
+    """One verb per control period: ``advance(u, plan_x, dt)``."""
+
+    @abstractmethod
+    def reset(self, x0: np.ndarray) -> None:
+        """Start at NMPC state ``x0`` = [platform DoFs, q] at rest."""
+
+    @abstractmethod
+    def advance(self, u: np.ndarray, plan_x: np.ndarray, dt: float) -> None:
+        """Apply command ``u`` (dx/dt) over ``dt`` [s]; ``plan_x`` (N+1, nx) is the plan."""
+
+    @abstractmethod
+    def state(self) -> np.ndarray:
+        """The NMPC state as measured now (possibly noisy)."""
+
+    def extras(self) -> dict[str, float]:
+        """Extra logged quantities (e.g. ``roll``, ``pitch`` in physics); none by default."""
+        return {}

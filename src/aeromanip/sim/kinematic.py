@@ -1,0 +1,31 @@
+"""Ideal inner loop (paper Sec. III-C): the state integrates the command exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aeromanip.errors import StateError
+from aeromanip.sim.base import Simulator
+
+
+class KinematicSimulator(Simulator):
+    """``x <- x + dt u``: the NMPC model itself, a perfect tracking inner loop."""
+
+    def __init__(self, nx: int) -> None:
+        self.nx = nx
+        self.x = np.zeros(nx)
+
+    def reset(self, x0: np.ndarray) -> None:
+        """Start at ``x0``."""
+        x0 = np.asarray(x0, dtype=float).ravel()
+        if x0.shape != (self.nx,) or not np.all(np.isfinite(x0)):
+            raise StateError(f"initial state: expected {self.nx} finite values, got {x0}")
+        self.x = x0.copy()
+
+    def advance(self, u: np.ndarray, plan_x: np.ndarray, dt: float) -> None:
+        """Integrate the constant command over ``dt`` [s]."""
+        self.x = self.x + dt * np.asarray(u, dtype=float)
+
+    def state(self) -> np.ndarray:
+        """The exact state."""
+        return self.x.copy()

@@ -1,0 +1,142 @@
+"""NLP solver backends (CasADi ``nlpsol``) for a ``Transcription``, with warm start.
+
+* ``ipopt``: the robust reference (interior point, exact Hessian, MUMPS).
+* ``fatrop``: a structure-exploiting interior-point method for optimal control
+  (Riccati-based linear algebra over the stage-wise variable/constraint order).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from aeromanip.errors import ConfigError
+from aeromanip.ocp import Transcription
+
+BACKENDS = ("ipopt", "fatrop")
+
+
+@dataclass
+class NlpResult:
+    """One NLP solve: primal/dual solution, status and statistics."""
+
+    w: np.ndarray
+    lam_g: np.ndarray
+    lam_x: np.ndarray
+    f: float
+    success: bool
+    status: str
+    iterations: int
+    solve_time_s: float
+
+
+def _options(name: str, tr: Transcription, user: Mapping[str, Any]) -> dict[str, Any]:
+    if name == "ipopt":
+        opts: dict[str, Any] = {
+            "print_time": False,
+            "ipopt.print_level": 0,
+            "ipopt.sb": "yes",
+            "ipopt.max_iter": 300,
+            "ipopt.warm_start_init_point": "yes",
+            "ipopt.warm_start_bound_push": 1e-6,
+            "ipopt.warm_start_mult_bound_push": 1e-6,
+            "ipopt.mu_init": 1e-3,
+        }
+    elif name == "fatrop":
+        opts = {
+            "print_time": False,
+            "structure_detection": "auto",
+            "equality": tr.equality,
+            "fatrop.print_level": 0,
+            "fatrop.max_iter": 300,
+            "fatrop.mu_init": 1e-3,
+        }
+    else:
+        raise ConfigError(f"solver.backend: unknown backend {name!r} (choose from {BACKENDS})")
+    opts.update(user)
+    return opts
+
+
+class NlpBackend:
+    """A compiled-once ``nlpsol`` for one transcription.
+
+    Args:
+        transcription: the NLP.
+        name: ``"ipopt"`` or ``"fatrop"``.
+        options: extra CasADi/solver options overriding the defaults (e.g. ``{"ipopt.tol": 1e-6}``).
+    """
+
+    def __init__(
+        self,
+        transcription: Transcription,
+        name: str = "ipopt",
+        options: Mapping[str, Any] | None = None,
+    ) -> None:
+        self.tr = transcription
+        self.name = name
+        nlp = {
+            "x": transcription.w,
+            "p": transcription.p,
+            "f": transcription.f,
+            "g": transcription.g,
+        }
+        opts = _options(name, transcription, options or {})
+        try:
+            self.solver = ca.nlpsol(f"nmpc_{name}", name, nlp, opts)
+        except RuntimeError as e:
+            raise ConfigError(f"solver.backend: {name} could not be set up: {e}") from None
+
+    def solve(
+        self,
+        w0: np.ndarray,
+        p: np.ndarray,
+        lbg: np.ndarray,
+        ubg: np.ndarray,
+        lam_g0: np.ndarray | None = None,
+        lam_x0: np.ndarray | None = None,
+    ) -> NlpResult:
+        """Solve from the initial guess ``w0`` (and multipliers, if given)."""
+        nx = self.tr.nx
+        lbw, ubw = self.tr.variable_bounds(p[:nx], p[nx : 2 * nx])
+        args: dict[str, Any] = {"x0": w0, "p": p, "lbx": lbw, "ubx": ubw, "lbg": lbg, "ubg": ubg}
+        if lam_g0 is not None:
+            args["lam_g0"] = lam_g0
+        if lam_x0 is not None:
+            args["lam_x0"] = lam_x0
+        t0 = time.perf_counter()
+        try:
+            out = self.solver(**args)
+            error = ""
+        except RuntimeError as e:  # evaluation errors (NaN) end in an exception
+            out, error = None, str(e).splitlines()[-1] if str(e) else "solver error"
+        elapsed = time.perf_counter() - t0
+        stats = self.solver.stats()
+        if out is None:
+            n = self.tr.w.numel()
+            return NlpResult(
+                np.full(n, np.nan),
+                np.zeros(self.tr.g.numel()),
+                np.zeros(n),
+                np.nan,
+                False,
+                error,
+                int(stats.get("iter_count", 0)),
+                elapsed,
+            )
+        w = np.asarray(out["x"]).ravel()
+        ok = bool(stats.get("success", False)) and bool(np.all(np.isfinite(w)))
+        return NlpResult(
+            w=w,
+            lam_g=np.asarray(out["lam_g"]).ravel(),
+            lam_x=np.asarray(out["lam_x"]).ravel(),
+            f=float(out["f"]),
+            success=ok,
+            status=str(stats.get("return_status", "unknown")),
+            iterations=int(stats.get("iter_count", -1)),
+            solve_time_s=elapsed,
+        )

@@ -1,0 +1,72 @@
+"""Task base class: a residual of the state, command and stage parameters.
+
+A task's cost at stage ``k`` is ``||r_k||^2_W`` with ``W`` given where tasks are combined
+(``Problem.add_task``), not inside the task (as in Crocoddyl). Terminal stage ``N`` uses
+``terminal_residual`` (no command exists there) with the terminal weight ``W_s``.
+Residuals are built symbolically from the kinematics Functions, once per problem.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from aeromanip.robot.kinematics import Kinematics
+
+
+@dataclass(frozen=True)
+class Stage:
+    """Symbols available to a residual at one stage of the horizon.
+
+    Attributes:
+        kin: the robot's kinematics.
+        x: state ``[platform DoFs, q]`` (nx x 1).
+        u: command ``dx/dt`` (nx x 1); ``None`` at the terminal stage.
+        u_prev: the command of the previous stage (the applied one for stage 0) (nx x 1).
+        params: this task's stage parameters (``param_size`` x 1), e.g. the reference.
+        dt: control period [s].
+    """
+
+    kin: Kinematics
+    x: ca.SX
+    u: ca.SX | None
+    u_prev: ca.SX
+    params: ca.SX
+    dt: float
+
+
+class Task:
+    """A cost term ``||r||^2_W``. Subclass and implement ``residual``.
+
+    Attributes:
+        name: short identifier used in logs and per-task cost reports.
+        param_size: number of time-varying parameters per stage (e.g. 3 for a position
+            reference); their values come from ``param_values`` at every controller step.
+    """
+
+    name: str = "task"
+    param_size: int = 0
+
+    def residual_size(self, kin: Kinematics) -> int:
+        """Length of the residual vector (the weight has this many entries)."""
+        x = ca.SX.sym("x", kin.nx)
+        u = ca.SX.sym("u", kin.nx)
+        stage = Stage(kin, x, u, u, ca.SX.sym("p", self.param_size), 1.0)
+        return int(self.residual(stage).numel())
+
+    def residual(self, stage: Stage) -> ca.SX:
+        """Stage residual ``r(x_k, u_k, p_k)`` (a column vector)."""
+        raise NotImplementedError
+
+    def terminal_residual(self, stage: Stage) -> ca.SX | None:
+        """Terminal residual ``r(x_N, p_N)``; ``None`` if the task has no terminal term.
+
+        By default the stage residual evaluated without a command, when it needs none.
+        """
+        return self.residual(stage)
+
+    def param_values(self, times: np.ndarray) -> np.ndarray:
+        """Stage parameters at absolute ``times`` [s]: array (len(times), param_size)."""
+        return np.zeros((len(times), self.param_size))

@@ -1,0 +1,51 @@
+"""Manipulability tasks: ``h4 = 1/D^2`` (paper eq. 13-14) and ``h5 = (1 - rho)^2`` (eq. 15-16)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import casadi as ca
+
+from aeromanip.tasks.base import Stage, Task
+
+
+class Manipulability(Task):
+    """``r = 1 / (D + eps)`` with ``D = det(J_eq J_eq^T)``, so ``||r||^2 = 1/D^2``.
+
+    ``eps`` (default 1e-9, units of ``D``) keeps the cost finite at singular
+    configurations (``D = 0``); it changes the cost by a relative ``eps / D`` elsewhere.
+    """
+
+    name = "manipulability"
+
+    def __init__(self, tracked: str | Sequence[str] = "xyz", eps: float = 1e-9) -> None:
+        self.tracked = tracked
+        self.eps = eps
+
+    def residual(self, stage: Stage) -> ca.SX:
+        """``1 / (D + eps)``."""
+        D = stage.kin.manipulability(self.tracked)(stage.x)
+        return 1.0 / (D + self.eps)
+
+
+class ConditionNumber(Task):
+    """``r = 1 - rho`` with ``rho`` the condition number of ``J_eq J_eq^T``.
+
+    ``rho`` uses the closed form of ``aeromanip.robot.spectral`` with its regularisation
+    ``delta`` near singular configurations and ``kink`` (default 1e-4), which rounds the
+    kinks of ``rho`` where two extreme eigenvalues coincide (where its minimum usually
+    lies) so that Newton-type solvers converge; ``kink=1e-12`` gives the exact ``rho``.
+    """
+
+    name = "condition"
+
+    def __init__(
+        self, tracked: str | Sequence[str] = "xyz", delta: float = 1e-9, kink: float = 1e-4
+    ) -> None:
+        self.tracked = tracked
+        self.delta = delta
+        self.kink = kink
+
+    def residual(self, stage: Stage) -> ca.SX:
+        """``1 - rho``."""
+        return 1.0 - stage.kin.condition_number(self.tracked, self.delta, self.kink)(stage.x)

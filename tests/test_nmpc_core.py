@@ -1,0 +1,250 @@
+"""NMPC core: reaching, constraints, hierarchy, weights, backends, fallback, errors."""
+
+import itertools
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from aeromanip.constraints import Bounds, Clearance, UserConstraint
+from aeromanip.controller import Controller
+from aeromanip.errors import ConfigError, InfeasibleProblemError, StateError
+from aeromanip.ocp import Problem
+from aeromanip.references import Constant
+from aeromanip.robot.loader import load_robot
+from aeromanip.tasks import (
+    CogAlignment,
+    ConditionNumber,
+    ControlRate,
+    EndEffectorTracking,
+    Stage,
+    Task,
+)
+
+X8 = load_robot("x8-3dof")
+X0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
+TARGET = [0.5, 0.3, 0.6]
+
+
+def make_problem(levels=(0, 1), cog_weight=1.0, target=TARGET, box=None, horizon=10, dt=0.5):
+    bounds = Bounds.from_robot(X8, platform_box=box)
+    pb = Problem(X8, horizon, dt, bounds)
+    pb.add_task(EndEffectorTracking(Constant(target)), weight=10.0, level=levels[0])
+    if levels[1] is not None:
+        pb.add_task(CogAlignment(), weight=cog_weight, level=levels[1])
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    pb.add_constraint(Clearance(0.1))
+    return pb
+
+
+def closed_loop(ctrl, x, steps):
+    cmds = []
+    for k in range(steps):
+        cmd = ctrl.step(x, k * ctrl.problem.dt)
+        cmds.append(cmd)
+        x = x + ctrl.problem.dt * cmd.u
+    return x, cmds
+
+
+def check_solution_feasible(pb, cmd, tol=1e-6):
+    b = pb.bounds
+    X, U = cmd.plan_x, cmd.plan_u
+    assert np.all(X[1:] >= b.x_lower - tol) and np.all(X[1:] <= b.x_upper + tol)
+    assert np.all(b.u_lower - tol <= U) and np.all(b.u_upper + tol >= U)
+    clear = pb.kin.clearance()
+    for x in X[1:]:
+        assert np.all(np.asarray(clear(x)) >= 0.1 - tol)
+    # the plan obeys the model x[k+1] = x[k] + dt u[k]
+    np.testing.assert_allclose(X[1:], X[:-1] + pb.dt * U, atol=1e-8)
+
+
+@pytest.mark.parametrize("backend", ["ipopt", "fatrop"])
+def test_reachable_target_is_reached_within_bounds(backend):
+    pb = make_problem(box={"z": (0.5, 2.0)})
+    ctrl = Controller(pb, "weighted", backend)
+    x, cmds = closed_loop(ctrl, X0, 25)
+    assert all(c.status == "ok" for c in cmds)
+    np.testing.assert_allclose(np.asarray(pb.kin.ee_position(x)).ravel(), TARGET, atol=1e-3)
+    for c in cmds:
+        check_solution_feasible(pb, c)
+
+
+def test_active_bounds_and_clearance_hold():
+    """A target only reachable by folding the arm up: clearance and joint limits bind."""
+    pb = make_problem(target=[0.2, 0.0, 0.95], box={"z": (1.0, 1.0 + 1e-9)})
+    ctrl = Controller(pb, "weighted")
+    x, cmds = closed_loop(ctrl, X0, 12)
+    depth = np.asarray(pb.kin.clearance()(x)).ravel()
+    assert depth.min() == pytest.approx(0.1, abs=1e-5)  # the constraint is active
+    for c in cmds:
+        check_solution_feasible(pb, c)
+
+
+@pytest.mark.parametrize("mode", ["stagewise", "total"])
+def test_hierarchy_keeps_primary_optimum_and_improves_secondary(mode):
+    # primary alone
+    ref = Controller(make_problem(levels=(0, None)), "weighted").step(X0, 0.0)
+    primary_alone = ref.task_costs["tracking"]
+    # hierarchy
+    pb = make_problem(levels=(0, 1))
+    cmd = Controller(pb, "hierarchical", hierarchy={"mode": mode}).step(X0, 0.0)
+    assert cmd.status == "ok"
+    n_rows = pb.horizon + 1 if mode == "stagewise" else 1
+    allowed = primary_alone * (1 + 1e-3) + 1e-6 * n_rows
+    assert cmd.levels[0].cost == pytest.approx(primary_alone, rel=1e-5, abs=1e-9)
+    assert cmd.task_costs["tracking"] <= allowed + 1e-9
+    # the secondary cost at the hierarchy's solution is lower than at the primary-only one
+    assert _cog_cost(pb, cmd.plan_x) == pytest.approx(cmd.task_costs["cog"], rel=1e-9)
+    # stage 0 is the measured state: compare what the optimisation can change
+    cog_without, cog_with = _cog_cost(pb, ref.plan_x[1:]), _cog_cost(pb, cmd.plan_x[1:])
+    assert cog_with < 0.5 * cog_without
+    assert cmd.levels[1].gain > 0.0
+
+
+def _cog_cost(pb, states):
+    """Sum over ``states`` of the squared body-frame xy CoG offset (unit weights)."""
+    c = pb.kin.cog_body
+    return float(sum(np.sum(np.asarray(c(x)).ravel()[:2] ** 2) for x in states))
+
+
+def test_three_levels_each_keeps_higher_optima():
+    pb = make_problem(levels=(0, 1))
+    pb.add_task(ConditionNumber("xyz"), weight=1e-4, level=2)
+    cmd = Controller(pb, "hierarchical").step(X0, 0.0)
+    assert [lv.level for lv in cmd.levels] == [0, 1, 2]
+    assert all(lv.success for lv in cmd.levels)
+    two = Controller(make_problem(levels=(0, 1)), "hierarchical").step(X0, 0.0)
+    # levels 0 and 1 keep (within tolerance) their optimum from the two-level problem
+    n = pb.horizon + 1
+    assert cmd.task_costs["tracking"] <= two.levels[0].cost * 1.001 + 1e-6 * n
+    assert cmd.task_costs["cog"] <= two.levels[1].cost * 1.001 + 1e-6 * n + 1e-9
+    assert cmd.levels[2].gain >= 0.0
+
+
+def test_raising_a_weight_lowers_that_task_cost():
+    costs = []
+    for w in [0.01, 0.1, 1.0, 10.0]:
+        pb = make_problem(levels=(0, 0), cog_weight=w, target=[0.6, 0.3, 0.6])
+        cmd = Controller(pb, "weighted").step(X0, 0.0)
+        costs.append(cmd.task_costs["cog"] / w)
+    assert all(a > b for a, b in itertools.pairwise(costs)), costs
+
+
+def test_backends_reach_the_same_optimum():
+    plans = {}
+    for backend in ["ipopt", "fatrop"]:
+        cmd = Controller(make_problem(levels=(0, 0)), "weighted", backend).step(X0, 0.0)
+        assert cmd.status == "ok"
+        plans[backend] = cmd
+    np.testing.assert_allclose(plans["ipopt"].plan_u, plans["fatrop"].plan_u, atol=1e-4)
+    assert plans["ipopt"].task_costs["tracking"] == pytest.approx(
+        plans["fatrop"].task_costs["tracking"], rel=1e-4, abs=1e-8
+    )
+
+
+def test_forced_failure_falls_back_to_previous_plan_then_stops():
+    pb = make_problem(levels=(0, 0))
+    good = Controller(pb, "weighted")
+    first = good.step(X0, 0.0)
+    assert first.status == "ok"
+    # now make every solve fail: a budget no solver can meet
+    good.time_budget_s = 1e-9
+    x = X0 + pb.dt * first.u
+    second = good.step(x, pb.dt)
+    assert second.status == "fallback" and "over budget" in second.message
+    np.testing.assert_allclose(second.u, first.plan_u[1])
+    statuses = [good.step(x, k * pb.dt).status for k in range(2, 2 + pb.horizon)]
+    assert statuses[-1] == "stopped"
+    assert np.all(good.step(x, 99.0).u == 0.0)
+
+
+def test_solver_failure_without_plan_stops():
+    pb = make_problem(levels=(0, 0))
+    ctrl = Controller(pb, "weighted", solver_options={"ipopt.max_iter": 1})
+    cmd = ctrl.step(X0, 0.0)
+    assert cmd.status == "stopped" and np.all(cmd.u == 0.0)
+    assert "Maximum_Iterations" in cmd.message
+
+
+def test_initial_state_outside_hard_bounds_is_a_status_not_a_crash():
+    pb = make_problem(levels=(0, 0))
+    x = X0.copy()
+    x[5] = 3.0  # shoulder far beyond its 1.6 rad limit, unrecoverable in one step
+    cmd = Controller(pb, "weighted").step(x, 0.0)
+    assert cmd.status == "stopped"
+    assert cmd.message
+
+
+def test_inconsistent_bounds_are_reported_before_solving():
+    with pytest.raises(InfeasibleProblemError, match=r"bounds\.x\.z"):
+        Bounds.from_robot(X8, platform_box={"z": (2.0, 1.0)})
+    with pytest.raises(ConfigError, match=r"platform_box\.pitch"):
+        Bounds.from_robot(X8, platform_box={"pitch": (0.0, 1.0)})
+
+
+def test_bad_state_is_a_clear_error():
+    ctrl = Controller(make_problem(levels=(0, 0)), "weighted")
+    with pytest.raises(StateError, match="expected 7 values"):
+        ctrl.step(np.zeros(6), 0.0)
+    x = X0.copy()
+    x[4] = np.nan
+    with pytest.raises(StateError, match="q1 is not finite"):
+        ctrl.step(x, 0.0)
+
+
+def test_user_constraint_holds():
+    pb = make_problem(levels=(0, 0), target=[0.5, 0.3, 0.4])
+    pb.add_constraint(
+        UserConstraint("ee_above_floor", lambda s: s.kin.ee_position(s.x)[2], 0.55, np.inf)
+    )
+    cmd = Controller(pb, "weighted").step(X0, 0.0)
+    ee_z = [float(pb.kin.ee_position(x)[2]) for x in cmd.plan_x[1:]]
+    assert min(ee_z) >= 0.55 - 1e-6
+    assert min(ee_z) == pytest.approx(0.55, abs=1e-4)  # active: the target is below
+
+
+class JointPosture(Task):
+    """A user task written outside the package: joints towards a posture."""
+
+    name = "posture"
+
+    def __init__(self, q_ref):
+        self.q_ref = ca.DM(q_ref)
+
+    def residual(self, stage: Stage):
+        return stage.x[stage.kin.n_platform :] - self.q_ref
+
+
+def test_user_task_through_public_api():
+    pb = Problem(X8, 10, 0.5)
+    pb.add_task(JointPosture([0.2, -0.3, 0.5]), weight=1.0)
+    pb.add_task(ControlRate(), weight=0.01, level=None)
+    x, _ = closed_loop(Controller(pb, "weighted"), X0, 20)
+    np.testing.assert_allclose(x[4:], [0.2, -0.3, 0.5], atol=1e-3)
+
+
+def test_weights_named_by_dof_push_motion_to_the_arm():
+    """Sec. IV-D: a heavy platform control-rate weight makes the arm do the work."""
+    shares = {}
+    for name, w in {
+        "arm": {"x": 100, "y": 100, "z": 100, "yaw": 100, "default": 0.01},
+        "platform": {"q1": 100, "q2": 100, "q3": 100, "default": 0.01},
+    }.items():
+        pb = Problem(X8, 10, 0.5)
+        pb.add_task(EndEffectorTracking(Constant([0.1, 0.05, 0.5])), weight=10.0)
+        pb.add_task(ControlRate(), weight=w, level=None)
+        cmd = Controller(pb, "weighted").step(X0, 0.0)
+        shares[name] = np.abs(cmd.plan_u[:, :3]).sum() / np.abs(cmd.plan_u).sum()
+    assert shares["arm"] < 0.2 < 0.8 < shares["platform"]
+
+
+def test_bad_task_declarations_are_clear_errors():
+    pb = Problem(X8, 10, 0.5)
+    with pytest.raises(ConfigError, match=r"tasks\.control_rate\.weight\.pitch"):
+        pb.add_task(ControlRate(), weight={"pitch": 1.0})
+    with pytest.raises(ConfigError, match=r"tasks\.cog\.weight: expected 1 or 2 values"):
+        pb.add_task(CogAlignment(), weight=[1.0, 2.0, 3.0])
+    with pytest.raises(ConfigError, match="horizon"):
+        Problem(X8, 0, 0.5)
+    with pytest.raises(ConfigError, match="strategy"):
+        Controller(make_problem(), "lexicographic")
