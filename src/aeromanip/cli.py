@@ -1,4 +1,4 @@
-"""Command line: ``aeromanip list | bench``.
+"""Command line: ``aeromanip run | list | plot | bench``.
 
 Errors a user can cause (unknown names, bad values, malformed files) print one line and
 exit with code 2, without a traceback.
@@ -9,18 +9,86 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from aeromanip.errors import AeromanipError
+from aeromanip.errors import AeromanipError, ConfigError
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
     from aeromanip.robot.loader import builtin_robots
+    from aeromanip.scenario import builtin_scenarios
 
+    print("scenarios:")
+    for name, text in builtin_scenarios().items():
+        print(f"  {name:<20} {text}")
     print("robots:")
     for name, text in builtin_robots().items():
-        print(f"  {name:<16} {text}")
+        print(f"  {name:<20} {text}")
+    return 0
+
+
+SUMMARY_COLUMNS = (
+    ("ee_rmse_m", "EE RMSE m", "{:.4f}"),
+    ("ee_max_err_m", "EE max m", "{:.4f}"),
+    ("cog_xy_mean_m", "CoG xy m", "{:.4f}"),
+    ("cond_mean", "cond", "{:.2f}"),
+    ("min_clearance_m", "clear m", "{:.3f}"),
+    ("max_bound_violation", "bound viol", "{:.1e}"),
+    ("solve_ms_median", "solve ms", "{:.1f}"),
+    ("solver_failures", "fails", "{:d}"),
+)
+
+
+def _format_summary(summaries: dict[str, dict]) -> str:
+    head = f"{'run':<22}" + "".join(f"{h:>12}" for _, h, _ in SUMMARY_COLUMNS)
+    lines = [head]
+    for variant, s in summaries.items():
+        cells = []
+        for key, _, fmt in SUMMARY_COLUMNS:
+            v = s.get(key)
+            cells.append(f"{'-' if v is None else fmt.format(v):>12}")
+        lines.append(f"{(variant or s['scenario']):<22}" + "".join(cells))
+    return "\n".join(lines)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from aeromanip.runner import run_scenarios
+    from aeromanip.scenario import load_scenarios
+
+    scenarios = load_scenarios(args.scenario, args.set or [], args.variant)
+    first = next(iter(scenarios.values()))
+    out = Path(args.out or Path("runs") / first.name.split("/")[0])
+    steps = sum(sc.steps for sc in scenarios.values())
+    print(f"running {args.scenario}: {len(scenarios)} run(s), {steps} control steps -> {out}")
+    t0 = time.perf_counter()
+    summaries = run_scenarios(scenarios, out, progress=not args.quiet)
+    print(_format_summary(summaries))
+    print(f"done in {time.perf_counter() - t0:.1f} s; outputs in {out.resolve()}")
+    return 0
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from aeromanip.plots import plot_comparison, plot_run
+    from aeromanip.runlog import LOG_FILE, RunLog
+
+    root = Path(args.dir)
+    if (root / LOG_FILE).is_file():
+        paths = plot_run(RunLog.load(root), root / "figures")
+    else:
+        runs = sorted(p.parent for p in root.glob(f"*/{LOG_FILE}"))
+        if not runs:
+            raise ConfigError(f"{root}: no {LOG_FILE} here nor in its sub-directories")
+        logs = {}
+        paths = []
+        for d in runs:
+            logs[d.name] = RunLog.load(d)
+            paths += plot_run(logs[d.name], d / "figures")
+        if len(logs) > 1:
+            paths += plot_comparison(logs, root / "figures")
+    for p in paths:
+        print(p)
     return 0
 
 
@@ -46,6 +114,21 @@ def build_parser() -> argparse.ArgumentParser:
         prog="aeromanip", description="NMPC for aerial manipulators (Lunni et al., ICUAS 2017)"
     )
     sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("run", help="run a scenario closed loop and write its outputs")
+    p.add_argument("scenario", nargs="?", default="flight", help="built-in name or FILE.toml")
+    p.add_argument("--out", metavar="DIR", help="output directory (default runs/<scenario>)")
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override a scenario value, e.g. --set controller.backend=fatrop",
+    )
+    p.add_argument("--variant", metavar="NAME", help="run only this variant")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_run)
+    p = sub.add_parser("plot", help="re-draw the figures of a saved run directory")
+    p.add_argument("dir", help="a run directory (or a directory of variant runs)")
+    p.set_defaults(func=_cmd_plot)
     p = sub.add_parser("list", help="built-in robots and scenarios, one line each")
     p.set_defaults(func=_cmd_list)
     p = sub.add_parser("bench", help="measure evaluation and controller step times")

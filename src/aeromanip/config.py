@@ -25,12 +25,18 @@ def load_toml(path: str | Path) -> dict[str, Any]:
             return tomllib.load(f)
     except FileNotFoundError:
         raise ConfigError(f"{p}: file not found") from None
+    except (IsADirectoryError, PermissionError) as e:
+        raise ConfigError(f"{p}: cannot read: {e.strerror}") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{p}: malformed TOML: {e}") from None
 
 
 class Table:
-    """A read-only view of one TOML table that knows its key path and tracks used keys."""
+    """A read-only view of one TOML table that knows its key path and tracks used keys.
+
+    ``resolved`` collects every value read, defaults included (sub-tables nested): written
+    back as TOML it is the fully resolved configuration.
+    """
 
     def __init__(self, data: Mapping[str, Any], path: str = "") -> None:
         if not isinstance(data, Mapping):
@@ -38,6 +44,7 @@ class Table:
         self.data = data
         self.path = path
         self._used: set[str] = set()
+        self.resolved: dict[str, Any] = {}
 
     def key(self, name: str) -> str:
         """The full key path of ``name`` in this table."""
@@ -53,8 +60,12 @@ class Table:
         if name not in self.data:
             if default is _MISSING:
                 raise ConfigError(f"{self.key(name)}: missing required key")
-            return default
-        return self.data[name]
+            value = default
+        else:
+            value = self.data[name]
+        if value is not None and not isinstance(value, Mapping):
+            self.resolved[name] = list(value) if isinstance(value, tuple) else value
+        return value
 
     def float(self, name: str, default: Any = _MISSING, *, finite: bool = True) -> float:
         """A number (int or float); ``finite`` rejects inf/nan."""
@@ -96,14 +107,28 @@ class Table:
     def table(self, name: str, default: Any = _MISSING) -> Table:
         """A sub-table."""
         v = self.raw(name, default)
-        return Table(v, self.key(name))
+        child = Table(v, self.key(name))
+        self.resolved[name] = child.resolved
+        return child
+
+    def sub(self, name: str, data: Mapping[str, Any]) -> Table:
+        """A sub-table read from ``data`` in place of the value stored under ``name``.
+
+        Used where a string names a table kept elsewhere (e.g. a built-in robot).
+        """
+        self._used.add(name)
+        child = Table(data, self.key(name))
+        self.resolved[name] = child.resolved
+        return child
 
     def tables(self, name: str, default: Any = _MISSING) -> list[Table]:
         """An array of tables."""
         v = self.raw(name, default)
         if not isinstance(v, list):
             raise ConfigError(f"{self.key(name)}: expected an array of tables, got {v!r}")
-        return [Table(item, f"{self.key(name)}[{i}]") for i, item in enumerate(v)]
+        children = [Table(item, f"{self.key(name)}[{i}]") for i, item in enumerate(v)]
+        self.resolved[name] = [c.resolved for c in children]
+        return children
 
     def done(self) -> None:
         """Raise on any key that was never read (a typo would otherwise pass silently)."""
@@ -131,3 +156,26 @@ def to_floats(
     if size is not None and len(v) != size:
         raise ConfigError(f"{path}: expected {size} numbers, got {len(v)}")
     return tuple(to_float(x, f"{path}[{i}]", finite=finite) for i, x in enumerate(v))
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """``"a.b.c=VALUE"`` -> (["a", "b", "c"], value); VALUE is read as TOML, else a string."""
+    key, sep, value = text.partition("=")
+    key = key.strip()
+    if not sep or not key or any(not part for part in key.split(".")):
+        raise ConfigError(f"--set {text!r}: expected KEY=VALUE with a dotted KEY")
+    try:
+        parsed = tomllib.loads(f"v = {value.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value.strip()
+    return key.split("."), parsed
+
+
+def apply_override(data: dict[str, Any], path: list[str], value: Any, where: str) -> None:
+    """Set ``data[path...] = value`` in place; every table on the path must exist."""
+    node: Any = data
+    for i, part in enumerate(path[:-1]):
+        if not isinstance(node, dict) or part not in node or not isinstance(node[part], dict):
+            raise ConfigError(f"{where}: unknown key {'.'.join(path[: i + 1])!r}")
+        node = node[part]
+    node[path[-1]] = value

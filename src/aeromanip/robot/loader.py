@@ -61,7 +61,7 @@ def builtin_robots() -> dict[str, str]:
 def load_robot(name_or_path: str | Path) -> RobotSpec:
     """Load a built-in robot by name (e.g. ``"x8-3dof"``) or a robot TOML file."""
     p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
+    if p.suffix == ".toml" or p.is_file():
         return robot_from_table(load_toml(p), base_dir=p.parent)
     builtin = resources.files("aeromanip.robots") / f"{name_or_path}.toml"
     if not builtin.is_file():

@@ -28,6 +28,10 @@ class Simulator(ABC):
     def state(self) -> np.ndarray:
         """The NMPC state as measured now (possibly noisy)."""
 
+    def true_state(self) -> np.ndarray:
+        """The NMPC state without measurement noise (what the run log records)."""
+        return self.state()
+
     def extras(self) -> dict[str, float]:
         """Extra logged quantities (e.g. ``roll``, ``pitch`` in physics); none by default."""
         return {}
