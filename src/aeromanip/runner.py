@@ -110,6 +110,9 @@ def simulate(
         cmd = ctrl.step(measured, t)
         x = sim.true_state()
         ee, cog, manip, cond, clear = (np.asarray(v).ravel() for v in log_f(x))
+        physical_ee = sim.ee_position()
+        if physical_ee is not None:
+            ee = np.asarray(physical_ee, dtype=float)
         ref = sc.reference.position(t)
         row: dict[str, Any] = {"t": t}
         for d in PLATFORM_DOFS:
@@ -150,7 +153,7 @@ def simulate(
 
 
 def _meta(sc: Scenario) -> dict[str, Any]:
-    bounds = sc.problem.bounds.as_dict()
+    bounds = sc.limits.as_dict()  # the true limits (the NMPC may plan with tightened ones)
     meta: dict[str, Any] = {
         "scenario": sc.name,
         "state_names": list(sc.robot.state_names),

@@ -5,7 +5,8 @@ Layout (see the built-in files in ``aeromanip/scenarios/`` for documented exampl
     name, description, duration [s], initial_state [nx], sim ("kinematic" | "physics")
     robot = "x8-3dof"  |  robot = "path/robot.toml"  |  [robot] ... (inline robot table)
     [controller]  strategy, backend, horizon, dt, time_budget, [hierarchy], [solver_options]
-    [bounds]      joints, velocity (bools), platform_box = { z = [lo, hi], ... }
+    [bounds]      joints, velocity (bools), platform_box = { z = [lo, hi], ... },
+                  platform_margin [m] (the NMPC plans inside the box shrunk by it)
     [clearance]   d_min, points  (omit the table for no self-collision constraint)
     [reference]   kind = "sinusoids" | "waypoints" | "lissajous" | "csv" | "constant" ...
     [tasks.NAME]  kind (default NAME), weight, terminal_weight, level | regularizer = true,
@@ -67,6 +68,7 @@ class Scenario:
     physics: dict[str, Any]
     tracked: str
     clearance: Clearance | None
+    limits: Bounds
     resolved: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -169,9 +171,10 @@ def _task(kind: str, tt: Table, reference: Reference) -> Task:
 
 
 def _weight(tt: Table, key: str, default: Any) -> Any:
+    if isinstance(tt.data.get(key), dict):
+        wt = tt.table(key)
+        return {k: wt.float(k) for k in wt.data}
     v = tt.raw(key, default)
-    if isinstance(v, dict):
-        return {k: Table(v, tt.key(key)).float(k) for k in v}
     if isinstance(v, list):
         return list(tt.floats(key))
     return tt.float(key) if key in tt.data else v
@@ -207,12 +210,18 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
     bt = t.table("bounds", {})
     box_t = bt.table("platform_box", {})
     box = {k: box_t.floats(k, size=2, finite=False) for k in box_t.data}
-    bounds = Bounds.from_robot(
-        robot,
-        joint_limits=bt.bool("joints", True),
-        velocity_limits=bt.bool("velocity", True),
-        platform_box=box,
-    )
+    margin = bt.float("platform_margin", 0.0)
+    if margin < 0:
+        raise ConfigError(f"{bt.key('platform_margin')}: must be >= 0, got {margin}")
+    flags = {"joint_limits": bt.bool("joints", True), "velocity_limits": bt.bool("velocity", True)}
+    limits = Bounds.from_robot(robot, platform_box=box, **flags)
+    # constraint tightening: the NMPC plans inside the box shrunk by the margin, so that
+    # the real platform, lagging its references a little, stays inside the true box
+    tight = {k: (lo + margin, hi - margin) for k, (lo, hi) in box.items()}
+    for k, (lo, hi) in tight.items():
+        if lo > hi:
+            raise ConfigError(f"{bt.key('platform_margin')}: {margin} m closes platform_box.{k}")
+    bounds = Bounds.from_robot(robot, platform_box=tight, **flags)
     bt.done()
     problem = Problem(robot, horizon, dt, bounds)
 
@@ -277,6 +286,7 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
         physics=physics,
         tracked=tracked,
         clearance=clearance,
+        limits=limits,
         resolved=resolved,
     )
 

@@ -32,6 +32,11 @@ class Simulator(ABC):
         """The NMPC state without measurement noise (what the run log records)."""
         return self.state()
 
+    def ee_position(self) -> np.ndarray | None:
+        """The physical end-effector position [m], world frame, if it differs from the
+        kinematic model's (e.g. tilted platform in physics); ``None`` otherwise."""
+        return None
+
     def extras(self) -> dict[str, float]:
         """Extra logged quantities (e.g. ``roll``, ``pitch`` in physics); none by default."""
         return {}

@@ -1,0 +1,63 @@
+"""The command line: clear one-line errors with exit code 2, list, a short run."""
+
+import subprocess
+import sys
+
+import pytest
+
+from aeromanip.cli import main
+
+
+def run_cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "aeromanip.cli", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["run", "nosuch"], "unknown scenario 'nosuch'"),
+        (["run", "flight", "--set", "controller.horizn=5"], "controller.horizn: unknown key"),
+        (["run", "flight", "--set", "nosuch.key=1"], "unknown key 'nosuch'"),
+        (["run", "flight", "--set", "controller.horizon=abc"],
+         "controller.horizon: expected an integer, got 'abc'"),
+        (["run", "flight", "--set", "controller.dt=-0.5"], "dt: must be a finite number > 0"),
+        (["run", "flight", "--set", "controller.strategy=lexicographic"],
+         "controller.strategy: 'lexicographic' is not one of"),
+        (["run", "flight", "--set", "noequals"], "expected KEY=VALUE"),
+        (["run", "planar", "--variant", "cond-max"], "unknown variant"),
+        (["run", "flight", "--set", "initial_state=[0, 0, 1]"], "initial_state: expected 7"),
+        (["plot", "/nonexistent/dir"], "no log.csv"),
+    ],
+)
+def test_bad_input_is_one_clear_line_and_exit_2(args, message, capsys):
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+
+
+def test_malformed_toml_is_a_clear_error(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = 'x'\n[controller\n")
+    assert main(["run", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "malformed TOML" in err and str(bad) in err
+
+
+def test_list_names_scenarios_and_robots(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    for name in ("planar", "waypoints", "waypoints-unbounded", "flight", "x8-3dof",
+                 "planar-2dof"):
+        assert name in out
+
+
+def test_run_from_the_console_prints_summary_and_outputs(tmp_path):
+    out = tmp_path / "run"
+    proc = run_cli("run", "flight", "--set", "duration=5", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "EE RMSE" in proc.stdout and str(out) in proc.stdout
+    assert (out / "summary.json").is_file() and (out / "figures" / "ee_tracking.png").is_file()
+    proc = run_cli("run", "nosuch")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr

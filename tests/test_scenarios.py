@@ -1,0 +1,140 @@
+"""The paper's case studies end to end (shortened where the claim allows), run outputs."""
+
+import numpy as np
+import pytest
+
+from aeromanip.runlog import RunLog, motion_share, read_summary
+from aeromanip.runner import run_scenarios
+from aeromanip.scenario import builtin_scenarios, load_scenarios
+
+PLANAR_SHORT = [
+    "duration=45",
+    "reference.phases=[{duration=20.0, amplitude=0.08, frequency=0.1},"
+    " {duration=25.0, amplitude=1.0, frequency=0.04}]",
+]
+
+
+@pytest.fixture(scope="module")
+def planar(tmp_path_factory):
+    out = tmp_path_factory.mktemp("planar")
+    run_scenarios(load_scenarios("planar", PLANAR_SHORT), out, progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def waypoints(tmp_path_factory):
+    out = tmp_path_factory.mktemp("waypoints")
+    run_scenarios(load_scenarios("waypoints"), out, progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    out = tmp_path_factory.mktemp("flight")
+    run_scenarios(load_scenarios("flight", ["duration=90"]), out, progress=False)
+    return out
+
+
+def test_builtin_scenarios_are_listed():
+    assert {"planar", "waypoints", "waypoints-unbounded", "flight"} <= set(builtin_scenarios())
+
+
+def test_planar_small_phase_by_arm_big_phase_by_platform(planar):
+    """Sec. VI-A / Fig. 3: the small sinusoid mostly by the arm, the big one by the platform."""
+    log = RunLog.load(planar / "cond-default")
+    small = motion_share(log, 0.0, 20.0, (0, 1, 0))
+    big = motion_share(log, 20.0, 45.0, (0, 1, 0))
+    assert small["arm"] > 0.5, small
+    assert big["platform"] > 0.5, big
+    s = read_summary(planar / "cond-default" / "summary.json")
+    assert s["ee_rmse_m"] < 0.01 and s["solver_failures"] == 0
+    assert s["min_clearance_m"] >= 0.1 - 1e-6
+
+
+def test_planar_condition_number_falls_with_its_weight(planar):
+    """Fig. 4: mean rho decreases from cond-off to cond-default to cond-high."""
+    rho = [read_summary(planar / v / "summary.json")["cond_mean"]
+           for v in ("cond-off", "cond-default", "cond-high")]
+    assert rho[0] > rho[1] > rho[2], rho
+
+
+def test_waypoints_hierarchy_keeps_tracking_and_aligns_cog(waypoints):
+    """Fig. 5: same tracking (1 % or 1 mm) and at least half the mean arm-CoG offset."""
+    only = read_summary(waypoints / "tracking-only" / "summary.json")
+    hier = read_summary(waypoints / "hierarchical" / "summary.json")
+    assert hier["ee_rmse_m"] <= max(1.01 * only["ee_rmse_m"], only["ee_rmse_m"] + 1e-3)
+    assert hier["cog_xy_mean_m"] <= 0.5 * only["cog_xy_mean_m"]
+    # the end effector passes through every waypoint
+    for v in ("tracking-only", "hierarchical"):
+        log = RunLog.load(waypoints / v)
+        ee = np.column_stack([log.column(c) for c in ("ee_x", "ee_y", "ee_z")])
+        for p in log.meta["waypoints"]:
+            assert np.min(np.linalg.norm(ee - np.asarray(p), axis=1)) < 0.01
+
+
+def test_flight_respects_joint_clearance_and_platform_bounds(flight):
+    """Figs. 8-9: joints within bounds, clearance >= 0.1 m, the platform in its box."""
+    s = read_summary(flight / "summary.json")
+    log = RunLog.load(flight)
+    assert s["solver_failures"] == 0
+    assert s["max_bound_violation"] <= 1e-6
+    assert s["min_clearance_m"] >= 0.1 - 1e-6
+    box = {"x": (-0.6, 0.6), "y": (-0.6, 0.6), "z": (0.8, 1.5)}
+    for dof, (lo, hi) in box.items():
+        assert lo - 1e-6 <= log.column(dof).min() and log.column(dof).max() <= hi + 1e-6
+    for i, (lo, hi) in enumerate([(-1.57, 1.57), (-1.6, 1.6), (-2.2, 2.2)]):
+        q = log.column(f"q{i + 1}")
+        assert lo - 1e-6 <= q.min() and q.max() <= hi + 1e-6
+    # the reference leaves the box: the NMPC's box (tightened by platform_margin = 0.01 m)
+    # is active at some point
+    assert max(log.column("x").max(), log.column("y").max()) == pytest.approx(0.59, abs=1e-4)
+
+
+def test_run_directory_follows_the_contract(flight):
+    for name in ("config.toml", "robot.urdf", "log.csv", "summary.json"):
+        assert (flight / name).stat().st_size > 0, name
+    log = RunLog.load(flight)
+    assert log.missing_columns() == []
+    summary = read_summary(flight / "summary.json")
+    for key in ("ee_rmse_m", "ee_max_err_m", "cog_xy_mean_m", "cond_mean", "min_clearance_m",
+                "max_bound_violation", "solve_ms_median", "solve_ms_p95", "solve_ms_max",
+                "steps", "solver_failures"):
+        assert key in summary, key
+    assert summary["steps"] == 180
+
+
+def _pngs(d):
+    return sorted(p.name for p in (d / "figures").glob("*.png"))
+
+
+def test_every_figure_is_produced_and_replotting_reproduces_them(planar, tmp_path):
+    from aeromanip.cli import main
+
+    expected_single = {"ee_tracking.png", "commands.png", "joints.png", "platform.png",
+                       "cog_offset.png", "solve_time.png"}
+    for v in ("cond-off", "cond-default", "cond-high"):
+        assert expected_single <= set(_pngs(planar / v))
+    assert {"condition.png", "paths_3d.png", "comparison_errors.png"} <= set(_pngs(planar))
+    for png in planar.rglob("*.png"):
+        data = png.read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, png
+    # re-plot a copy of the saved run from its files alone
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(planar, copy, ignore=shutil.ignore_patterns("figures"))
+    assert main(["plot", str(copy)]) == 0
+    assert _pngs(copy) == _pngs(planar)
+    for v in ("cond-off", "cond-default", "cond-high"):
+        assert _pngs(copy / v) == _pngs(planar / v)
+
+
+def test_config_toml_reproduces_the_run(tmp_path):
+    first = tmp_path / "first"
+    run_scenarios(load_scenarios("flight", ["duration=10"]), first, progress=False,
+                  figures=False)
+    again = tmp_path / "again"
+    run_scenarios(load_scenarios(first / "config.toml"), again, progress=False, figures=False)
+    a, b = RunLog.load(first), RunLog.load(again)
+    for col in ("x", "y", "z", "q1", "q2", "q3", "u_x", "ee_x", "ref_x"):
+        np.testing.assert_array_equal(a.column(col), b.column(col))
