@@ -248,3 +248,18 @@ def test_bad_task_declarations_are_clear_errors():
         Problem(X8, 0, 0.5)
     with pytest.raises(ConfigError, match="strategy"):
         Controller(make_problem(), "lexicographic")
+
+
+def test_orientation_tracking_reaches_the_desired_pose():
+    """h1 with orientation (Sec. IV-A): position and a yawed, pitched EE frame together."""
+    c, s = np.cos(0.6), np.sin(0.6)
+    Rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    R0 = np.asarray(make_problem().kin.ee_rotation(X0))
+    target_R = Rz @ R0  # the start orientation yawed by 0.6 rad about world z
+    pb = Problem(X8, 10, 0.5)
+    pb.add_task(EndEffectorTracking(Constant(TARGET), orientation=target_R), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.01, level=None)
+    x, cmds = closed_loop(Controller(pb, "weighted"), X0, 30)
+    assert cmds[-1].status == "ok"
+    np.testing.assert_allclose(np.asarray(pb.kin.ee_position(x)).ravel(), TARGET, atol=1e-3)
+    np.testing.assert_allclose(np.asarray(pb.kin.ee_rotation(x)), target_R, atol=1e-3)

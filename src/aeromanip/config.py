@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Mapping
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,31 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{p}: cannot read: {e.strerror}") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{p}: malformed TOML: {e}") from None
+
+
+def builtin_descriptions(package: str) -> dict[str, str]:
+    """Built-in TOML files of ``package`` (e.g. ``"aeromanip.robots"``): name -> description."""
+    out = {}
+    for item in sorted(resources.files(package).iterdir(), key=lambda p: p.name):
+        if item.name.endswith(".toml"):
+            data = load_toml(Path(str(item)))
+            out[item.name.removesuffix(".toml")] = str(data.get("description", ""))
+    return out
+
+
+def resolve_toml(name_or_path: str | Path, package: str, what: str) -> Path:
+    """A TOML file given by path, or by the name of a built-in of ``package``.
+
+    ``what`` ("robot", "scenario") names the kind in the error for an unknown name.
+    """
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.is_file():
+        return p.resolve()
+    item = resources.files(package) / f"{name_or_path}.toml"
+    if not item.is_file():
+        known = ", ".join(builtin_descriptions(package))
+        raise ConfigError(f"{what}: unknown {what} {str(name_or_path)!r} (built-in: {known})")
+    return Path(str(item))
 
 
 class Table:

@@ -22,13 +22,19 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from aeromanip.config import Table, apply_override, load_toml, parse_override
+from aeromanip.config import (
+    Table,
+    apply_override,
+    builtin_descriptions,
+    load_toml,
+    parse_override,
+    resolve_toml,
+)
 from aeromanip.constraints import Bounds, Clearance
 from aeromanip.errors import ConfigError
 from aeromanip.ocp import Problem
@@ -79,24 +85,13 @@ class Scenario:
 
 def builtin_scenarios() -> dict[str, str]:
     """Built-in scenario names mapped to their one-line description."""
-    out = {}
-    for item in sorted(resources.files("aeromanip.scenarios").iterdir(), key=lambda p: p.name):
-        if item.name.endswith(".toml"):
-            data = load_toml(Path(str(item)))
-            out[item.name.removesuffix(".toml")] = str(data.get("description", ""))
-    return out
+    return builtin_descriptions("aeromanip.scenarios")
 
 
 def scenario_source(name_or_path: str | Path) -> tuple[dict[str, Any], Path]:
     """The raw TOML table of a built-in scenario name or a file, and its directory."""
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.is_file():
-        return load_toml(p), p.resolve().parent
-    item = resources.files("aeromanip.scenarios") / f"{name_or_path}.toml"
-    if not item.is_file():
-        known = ", ".join(builtin_scenarios())
-        raise ConfigError(f"scenario: unknown scenario {str(name_or_path)!r} (built-in: {known})")
-    return load_toml(Path(str(item))), Path(str(item)).parent
+    path = resolve_toml(name_or_path, "aeromanip.scenarios", "scenario")
+    return load_toml(path), path.parent
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -138,19 +133,12 @@ def expand_variants(
 
 def _robot(t: Table, base_dir: Path) -> RobotSpec:
     raw = t.data.get("robot")
-    if isinstance(raw, str):
+    if isinstance(raw, str):  # a built-in name or a robot TOML file: inlined when resolved
         p = Path(raw)
-        if p.suffix == ".toml" and not p.is_absolute():
-            p = base_dir / p
-        src = p if p.suffix == ".toml" else resources.files("aeromanip.robots") / f"{raw}.toml"
-        if not Path(str(src)).is_file():
-            from aeromanip.robot.loader import builtin_robots
-
-            raise ConfigError(
-                f"robot: unknown robot {raw!r} (built-in: {', '.join(builtin_robots())})"
-            )
-        sub = t.sub("robot", load_toml(Path(str(src))))
-        return robot_from_table(sub, base_dir=Path(str(src)).parent)
+        path = resolve_toml(
+            base_dir / p if p.suffix == ".toml" else raw, "aeromanip.robots", "robot"
+        )
+        return robot_from_table(t.sub("robot", load_toml(path)), base_dir=path.parent)
     return robot_from_table(t.table("robot"), base_dir=base_dir)
 
 

@@ -37,11 +37,10 @@ Instead of ``[[joints]]`` an arm may come from a URDF file::
 from __future__ import annotations
 
 from dataclasses import replace
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from aeromanip.config import Table, load_toml
+from aeromanip.config import Table, builtin_descriptions, load_toml, resolve_toml
 from aeromanip.errors import ConfigError
 from aeromanip.robot.spec import Inertial, Joint, Platform, RobotSpec
 
@@ -50,24 +49,13 @@ _ZERO3 = (0.0, 0.0, 0.0)
 
 def builtin_robots() -> dict[str, str]:
     """Names of the built-in robots mapped to their one-line description."""
-    out = {}
-    for item in sorted(resources.files("aeromanip.robots").iterdir(), key=lambda p: p.name):
-        if item.name.endswith(".toml"):
-            data = load_toml(Path(str(item)))
-            out[item.name.removesuffix(".toml")] = str(data.get("description", ""))
-    return out
+    return builtin_descriptions("aeromanip.robots")
 
 
 def load_robot(name_or_path: str | Path) -> RobotSpec:
     """Load a built-in robot by name (e.g. ``"x8-3dof"``) or a robot TOML file."""
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.is_file():
-        return robot_from_table(load_toml(p), base_dir=p.parent)
-    builtin = resources.files("aeromanip.robots") / f"{name_or_path}.toml"
-    if not builtin.is_file():
-        known = ", ".join(builtin_robots())
-        raise ConfigError(f"robot: unknown robot {str(name_or_path)!r} (built-in: {known})")
-    return robot_from_table(load_toml(Path(str(builtin))), base_dir=Path(str(builtin)).parent)
+    path = resolve_toml(name_or_path, "aeromanip.robots", "robot")
+    return robot_from_table(load_toml(path), base_dir=path.parent)
 
 
 def robot_from_table(
