@@ -301,3 +301,98 @@ def test_bad_commands_are_rejected():
         sim.advance(np.zeros(3), np.tile(x0, (3, 1)), 0.1)
     with pytest.raises(StateError):
         sim.reset(np.array([0.0, np.nan, 0.0, 0.0]))
+
+
+# --- multi-rate inner loop ---------------------------------------------------------------
+
+
+def test_outer_loop_runs_every_outer_every_ticks():
+    pos, spins = rotor_layout(4, 0.25)
+    mixer = Mixer(pos, spins, 0.016, f_max=2 * 2.0 * G / 4)
+    fc = FlightController(2.0, (0.03, 0.03, 0.05), mixer, 0.002, outer_every=5)
+    assert fc.outer_dt == pytest.approx(0.01)
+    z = np.zeros(3)
+    forces, motors = [], []
+    for k in range(10):  # the position reference moves every tick
+        f = fc.update(z, z, np.eye(3), z, np.array([0.01 * (k + 1), 0.0, 0.0]), z, 0.0)
+        forces.append(fc.F)
+        motors.append(f)
+    # the thrust vector is recomputed on ticks 0 and 5 only, then held
+    assert forces[1:5] == [forces[0]] * 4 and forces[6:] == [forces[5]] * 4
+    assert forces[5][0] > forces[0][0] > 0.0
+    # the inner loop runs every tick: its rate integrator moves the rotors in between
+    assert not np.allclose(motors[1], motors[2])
+    with pytest.raises(ConfigError, match="outer_every"):
+        FlightController(2.0, (0.03, 0.03, 0.05), mixer, 0.002, outer_every=0)
+
+
+def test_update_equals_outer_then_inner_on_floats():
+    pos, spins = rotor_layout(6, 0.3)
+    mixer = Mixer(pos, spins, 0.016, f_max=6.0)
+    J = np.array([[0.05, 0.002, -0.001], [0.002, 0.06, 0.003], [-0.001, 0.003, 0.09]])
+    a = FlightController(2.5, J, mixer, 0.002)
+    b = FlightController(2.5, J, mixer, 0.002)
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        p, v, w, p_ref, v_ref = (rng.normal(size=3) for _ in range(5))
+        R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        R *= np.linalg.det(R)  # a rotation
+        yaw, rate = rng.normal(), rng.normal()
+        f = a.update(p, v, R, w, p_ref, v_ref, yaw, rate)
+        b.outer(tuple(p.tolist()), tuple(v.tolist()), tuple(p_ref.tolist()), tuple(v_ref.tolist()))
+        g = b.inner(R.ravel().tolist(), tuple(w.tolist()), yaw, rate)
+        np.testing.assert_array_equal(f, g)
+        np.testing.assert_allclose(mixer.A @ f, mixer.A @ mixer.mix(b.thrust, b.torque))
+    np.testing.assert_allclose(a.R_sp.T @ a.R_sp, np.eye(3), atol=1e-12)
+
+
+def test_multi_rate_matches_single_rate_loop():
+    """Outer loop at 100 Hz (default) vs every 500 Hz step: same flight within millimetres."""
+    spec = load_robot("x8-3dof")
+    x0 = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.4, -0.6])
+    runs = {}
+    for outer in (100.0, 500.0):
+        sim = PhysicsSimulator(spec, outer_rate_hz=outer)
+        sim.reset(x0)
+        x, ee, torque = x0.copy(), [], []
+        for k in range(50):
+            u = np.zeros(spec.nx)
+            u[:3] = 0.2 * np.cos(0.6 * k * 0.1 + np.arange(3))
+            u[3] = 0.3
+            u[4:] = 0.3 * np.cos(0.5 * k * 0.1 + np.arange(3))
+            sim.advance(u, np.tile(x, (2, 1)), 0.1)
+            x = x + 0.1 * u
+            ee.append(sim.ee_position())
+            torque.append(sim.extras()["arm_torque"])
+        runs[outer] = (np.array(ee), np.array(torque), sim)
+    assert runs[100.0][2].outer_every == 5 and runs[500.0][2].outer_every == 1
+    ee_diff = np.linalg.norm(runs[100.0][0] - runs[500.0][0], axis=1).max()
+    t100, t500 = runs[100.0][1].mean(), runs[500.0][1].mean()
+    msg = f"EE max diff {ee_diff:.2e} m, mean arm torque {t100:.4f} vs {t500:.4f} N m"
+    assert ee_diff < 0.003 and abs(t100 - t500) < 0.02 * t500, msg
+
+
+def test_derivative_gains_keep_the_step_response_settled():
+    spec = load_robot("x8-3dof")
+    gains = {"vel_d_xy": 0.1, "vel_d_z": 0.1, "rate_d_rp": 0.02, "rate_d_yaw": 0.01}
+    sim = PhysicsSimulator.from_options(spec, {"gains": gains})
+    x0 = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.5, -0.8])
+    sim.reset(x0)
+    target = x0.copy()
+    target[0] += 0.5
+    err = []
+    for _ in _hold(sim, target, 4.0):
+        err.append(sim.data.qpos[0] - target[0])
+    assert max(err) < 0.05 and abs(err[-1]) < 0.005, f"overshoot {max(err)}, final {err[-1]}"
+
+
+def test_outer_rate_option():
+    spec = load_robot("planar-2dof")
+    sim = PhysicsSimulator.from_options(spec, {"rate_hz": 250, "outer_rate_hz": 50})
+    assert sim.outer_every == 5 and sim.outer_rate_hz == pytest.approx(50.0)
+    assert sim.controller.outer_dt == pytest.approx(0.02)
+    sim = PhysicsSimulator(spec, outer_rate_hz=90.0)  # rounded to a divisor of 500 Hz
+    assert sim.outer_every == 6 and sim.outer_rate_hz == pytest.approx(500.0 / 6)
+    for value in (600.0, 5.0, "fast"):
+        with pytest.raises(ConfigError, match=r"physics\.outer_rate_hz:"):
+            PhysicsSimulator.from_options(spec, {"outer_rate_hz": value})

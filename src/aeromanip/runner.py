@@ -140,6 +140,10 @@ def simulate(
             }
         )
         row.update({f"cost_{n}": c for n, c in cmd.task_costs.items()})
+        if sc.strategy == "hierarchical":  # per level: optimal cost, what optimising it gained
+            for lv in cmd.levels:
+                row[f"level{lv.level}_cost"] = lv.cost
+                row[f"level{lv.level}_gain"] = lv.gain
         sim.advance(cmd.u, cmd.plan_x, dt)
         row.update(sim.extras())
         rows.append(row)

@@ -1,18 +1,26 @@
-"""A cascaded multirotor inner loop in the style of PX4 (pure NumPy, no simulator inside).
+"""A cascaded multirotor inner loop in the style of PX4 (plain Python floats, no simulator).
 
-Per call of ``FlightController.update`` (one inner-loop tick, typically 500 Hz):
+Two rates, as in PX4 (position control at ~50-100 Hz, attitude and rate control at the gyro
+rate). The **outer loop** (``FlightController.outer``, every ``outer_every``-th tick):
 
 1. position P + velocity feed-forward -> velocity set-point (speed-limited);
-2. velocity PID -> desired acceleration; desired force ``F = m (a + g e_z)`` with the tilt
-   limited to ``tilt_max`` (vertical thrust has priority);
-3. desired attitude: body z along ``F``, heading ``yaw_ref``;
+2. velocity PID -> desired acceleration; desired force ``F = m (a + g e_z)`` [N, world] with
+   the tilt limited to ``tilt_max`` (vertical thrust has priority); ``F`` is held until the
+   next outer tick.
+
+The **inner loop** (``FlightController.inner``, every tick):
+
+3. desired attitude ``R_sp``: body z along ``F``, heading ``yaw_ref`` (rebuilt every tick, so
+   a heading ramp stays smooth between outer ticks);
 4. attitude P on the geometric SO(3) error ``e_R = vee(R_d^T R - R^T R_d) / 2`` -> body-rate
    set-point (plus the yaw-rate feed-forward);
 5. body-rate PID -> angular acceleration -> torque ``tau = J alpha + w x J w``; collective
-   thrust ``T = F . b3``;
+   thrust ``T = F . b3`` (``F`` projected on the current body z);
 6. ``Mixer``: allocation-matrix pseudo-inverse, saturation to ``[0, f_max]`` giving roll/pitch
    priority over collective thrust, and collective thrust priority over yaw.
 
+``update`` is one tick on arrays. The per-tick path (``outer``/``inner``/``Mixer.mix_floats``)
+works on Python floats and tuples: NumPy calls on 3-vectors cost far more than the arithmetic.
 Gains are in acceleration units (they are multiplied by the mass and inertia), so one set
 suits every built-in robot. Frames: world ENU, body FLU; ``R`` maps body to world.
 """
@@ -29,6 +37,8 @@ import numpy as np
 from aeromanip.errors import ConfigError
 
 GRAVITY = 9.81  # [m/s^2]
+
+Vec3 = tuple[float, float, float]
 
 
 def rotor_layout(rotors: int, arm_length: float) -> tuple[np.ndarray, np.ndarray]:
@@ -59,30 +69,40 @@ class Mixer:
         self.f_max = float(f_max)
         self.A = np.vstack([np.ones(self.n), positions[:, 1], -positions[:, 0], k_m * spins])
         self.B = np.linalg.pinv(self.A)
+        self._cols = tuple(tuple(self.B[:, j].tolist()) for j in range(4))
 
-    def mix(self, thrust: float, torque: np.ndarray) -> np.ndarray:
-        """Rotor thrusts [N]: roll/pitch are scaled down only if their span exceeds ``f_max``;
-        the collective thrust is shifted to fit; yaw gets what is left."""
-        B, f_max = self.B, self.f_max
-        f_rp = B[:, 1] * torque[0] + B[:, 2] * torque[1]
-        span = f_rp.max() - f_rp.min()
-        if span > f_max:
-            f_rp = f_rp * (f_max / span)
-        f = B[:, 0] * thrust + f_rp
-        low, high = f.min(), f.max()  # span <= f_max: one uniform shift fits both bounds
+    def mix(self, thrust: float, torque: Sequence[float] | np.ndarray) -> np.ndarray:
+        """Rotor thrusts [N] (array) for ``thrust`` [N] and body ``torque`` [N m]."""
+        tx, ty, tz = (float(t) for t in torque)
+        return np.array(self.mix_floats(float(thrust), tx, ty, tz))
+
+    def mix_floats(self, thrust: float, tx: float, ty: float, tz: float) -> list[float]:
+        """Rotor thrusts [N] as floats: roll/pitch are scaled down only if their span exceeds
+        ``f_max``; the collective thrust is shifted to fit; yaw gets what is left."""
+        b0, b1, b2, b3 = self._cols
+        f_max = self.f_max
+        f_rp = [x * tx + y * ty for x, y in zip(b1, b2, strict=True)]
+        span = max(f_rp) - min(f_rp)
+        scale = f_max / span if span > f_max else 1.0
+        f = [c * thrust + x * scale for c, x in zip(b0, f_rp, strict=True)]
+        low, high = min(f), max(f)  # span <= f_max: one uniform shift fits both bounds
         if low < 0.0:
-            f = f - low
+            f = [x - low for x in f]
         elif high > f_max:
-            f = f - (high - f_max)
-        f_y = B[:, 3] * torque[2]
-        alpha = 1.0
-        up, down = f_y > 1e-12, f_y < -1e-12
-        if up.any():
-            alpha = min(alpha, float(np.min((f_max - f[up]) / f_y[up])))
-        if down.any():
-            alpha = min(alpha, float(np.min(f[down] / -f_y[down])))
-        f = f + max(alpha, 0.0) * f_y
-        return np.clip(f, 0.0, f_max)
+            high -= f_max
+            f = [x - high for x in f]
+        alpha = 1.0  # the share of the yaw demand that fits
+        for x, c in zip(f, b3, strict=True):
+            y = c * tz
+            if y > 1e-12:
+                alpha = min(alpha, (f_max - x) / y)
+            elif y < -1e-12:
+                alpha = min(alpha, x / -y)
+        alpha = max(alpha, 0.0)
+        return [  # f + alpha f_y, clipped to [0, f_max]
+            f_max if (v := x + alpha * (c * tz)) > f_max else (v if v > 0.0 else 0.0)
+            for x, c in zip(f, b3, strict=True)
+        ]
 
 
 @dataclass(frozen=True)
@@ -136,21 +156,27 @@ class FlightGains:
         return cls(**{k: float(v) for k, v in options.items()})
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
+def _vec3(a: Sequence[float] | np.ndarray) -> Vec3:
+    x, y, z = np.asarray(a, dtype=float).ravel().tolist()
+    return x, y, z
 
 
 class FlightController:
-    """Cascaded position -> velocity -> attitude -> rate controller plus mixer.
+    """Cascaded position -> velocity (outer) and attitude -> rate (inner) controller + mixer.
 
     Args:
         mass: total vehicle mass [kg] (platform + arm).
         inertia: inertia about the body origin [kg m^2], ``(3,)`` diagonal or ``(3, 3)``.
         mixer: rotor allocation and saturation.
-        dt: tick period [s].
+        dt: tick (inner-loop) period [s].
         gains: ``FlightGains`` (defaults if ``None``).
+        outer_every: the outer loop runs on every ``outer_every``-th tick, i.e. with period
+            ``outer_dt = outer_every dt`` [s]; 1 (default) runs both loops every tick.
+
+    Attributes (Python floats and tuples):
+        F: thrust-vector set-point of the last outer tick [N, world].
+        thrust: collective thrust [N]; torque: body torque [N m]; motors: rotor thrusts [N].
+        i_vel: velocity integrator [m/s^2]; i_rate: rate integrator [rad/s^2].
     """
 
     def __init__(
@@ -160,46 +186,70 @@ class FlightController:
         mixer: Mixer,
         dt: float,
         gains: FlightGains | None = None,
+        outer_every: int = 1,
     ) -> None:
+        if isinstance(outer_every, bool) or not isinstance(outer_every, int) or outer_every < 1:
+            raise ConfigError(f"outer_every: must be an integer >= 1, got {outer_every!r}")
         J = np.asarray(inertia, dtype=float)
         self.J = np.diag(J) if J.ndim == 1 else J
         self.J_inv = np.linalg.inv(self.J)
+        self._J = tuple(self.J.ravel().tolist())
         self.mass = float(mass)
         self.mixer = mixer
         self.dt = float(dt)
+        self.outer_every = outer_every
+        self.outer_dt = self.dt * outer_every
         self.gains = gains or FlightGains()
         g = self.gains
-        self._kp_pos = np.array([g.pos_p_xy, g.pos_p_xy, g.pos_p_z])
-        self._kp_vel = np.array([g.vel_p_xy, g.vel_p_xy, g.vel_p_z])
-        self._ki_vel = np.array([g.vel_i_xy, g.vel_i_xy, g.vel_i_z])
-        self._kd_vel = np.array([g.vel_d_xy, g.vel_d_xy, g.vel_d_z])
-        self._kp_att = np.array([g.att_p_rp, g.att_p_rp, g.att_p_yaw])
-        self._kp_rate = np.array([g.rate_p_rp, g.rate_p_rp, g.rate_p_yaw])
-        self._ki_rate = np.array([g.rate_i_rp, g.rate_i_rp, g.rate_i_yaw])
-        self._kd_rate = np.array([g.rate_d_rp, g.rate_d_rp, g.rate_d_yaw])
-        self._rate_max = np.array([g.rate_max_rp, g.rate_max_rp, g.rate_max_yaw])
+        self._kp_pos = (g.pos_p_xy, g.pos_p_xy, g.pos_p_z)
+        self._kp_vel = (g.vel_p_xy, g.vel_p_xy, g.vel_p_z)
+        self._ki_vel = (g.vel_i_xy, g.vel_i_xy, g.vel_i_z)
+        self._kd_vel = (g.vel_d_xy, g.vel_d_xy, g.vel_d_z)
+        # inner-loop constants in one tuple (roll and pitch share their gains)
+        self._inner_k = (
+            g.att_p_rp, g.att_p_yaw, g.rate_max_rp, g.rate_max_yaw, g.rate_p_rp, g.rate_p_yaw,
+            g.rate_i_rp, g.rate_i_yaw, g.rate_i_max, self.dt, mixer.n * mixer.f_max,
+        )  # fmt: skip
+        self._kd_rate = (g.rate_d_rp, g.rate_d_rp, g.rate_d_yaw)
+        self._rate_d_on = any(self._kd_rate)  # the rate D term (and its filter) is optional
+        self._tan_tilt = math.tan(g.tilt_max)
         tau = 1.0 / (2.0 * math.pi * g.d_cutoff_hz)
-        self._lpf = self.dt / (self.dt + tau)
+        self._lpf_v = self.outer_dt / (self.outer_dt + tau)  # derivative filters, per tick
+        self._lpf_w = self.dt / (self.dt + tau)
         self.reset()
 
     def reset(self, torque_trim: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0)) -> None:
         """Zero the integrators and filters; the rate integrator starts at ``torque_trim``.
 
         ``torque_trim`` [N m, body frame] is the steady torque the rotors must produce (e.g.
-        the arm's gravity moment), so that a reset into hover is a true equilibrium.
+        the arm's gravity moment), so that a reset into hover is a true equilibrium. The next
+        tick runs the outer loop.
         """
         g = self.gains
-        self.i_vel = np.zeros(3)
+        self.i_vel: Vec3 = (0.0, 0.0, 0.0)
         trim = self.J_inv @ np.asarray(torque_trim, dtype=float)
-        self.i_rate = np.clip(trim, -g.rate_i_max, g.rate_i_max)
-        self._v_prev: np.ndarray | None = None
-        self._w_prev: np.ndarray | None = None
-        self._dv = np.zeros(3)
-        self._dw = np.zeros(3)
+        self.i_rate: Vec3 = _vec3(np.clip(trim, -g.rate_i_max, g.rate_i_max))
+        self._v_prev: Vec3 | None = None
+        self._w_prev: Vec3 | None = None
+        self._dv: Vec3 = (0.0, 0.0, 0.0)
+        self._dw: Vec3 = (0.0, 0.0, 0.0)
+        self.F: Vec3 = (0.0, 0.0, self.mass * GRAVITY)
+        self._b3: Vec3 = (0.0, 0.0, 1.0)
+        self._R_sp = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
         self.thrust = self.mass * GRAVITY
-        self.torque = np.zeros(3)
-        self.R_sp = np.eye(3)
-        self.motors = self.mixer.mix(self.thrust, self.torque)
+        self.torque: Vec3 = (0.0, 0.0, 0.0)
+        self.motors = self.mixer.mix_floats(self.thrust, 0.0, 0.0, 0.0)
+        self._ticks = 0
+
+    @property
+    def outer_due(self) -> bool:
+        """Whether the next tick runs the outer loop (every ``outer_every``-th tick)."""
+        return self._ticks % self.outer_every == 0
+
+    @property
+    def R_sp(self) -> np.ndarray:
+        """Desired attitude of the last tick (3x3 body-to-world rotation)."""
+        return np.array(self._R_sp).reshape(3, 3)
 
     def update(
         self,
@@ -212,7 +262,7 @@ class FlightController:
         yaw_ref: float,
         yaw_rate_ref: float = 0.0,
     ) -> np.ndarray:
-        """One tick: rotor thrusts [N] from the state and the references.
+        """One tick on arrays: the outer loop if due, then the inner loop; rotor thrusts [N].
 
         Args:
             p, v: position [m] and velocity [m/s] of the body origin, world frame.
@@ -220,49 +270,131 @@ class FlightController:
             p_ref, v_ref: position reference [m] and its velocity feed-forward [m/s].
             yaw_ref, yaw_rate_ref: heading reference [rad] and its rate [rad/s].
         """
-        g, dt = self.gains, self.dt
+        if self.outer_due:
+            self.outer(_vec3(p), _vec3(v), _vec3(p_ref), _vec3(v_ref))
+        R9 = np.asarray(R, dtype=float).ravel().tolist()
+        return np.array(self.inner(R9, _vec3(w), float(yaw_ref), float(yaw_rate_ref)))
+
+    def outer(
+        self, p: Sequence[float], v: Sequence[float], p_ref: Sequence[float], v_ref: Sequence[float]
+    ) -> None:
+        """Position/velocity loop: sets the thrust-vector set-point ``F`` [N, world].
+
+        Arguments as in ``update`` (3 floats each); runs with period ``outer_dt``.
+        """
+        g, dt, m = self.gains, self.outer_dt, self.mass
+        kpx, kpy, kpz = self._kp_pos
         # position -> velocity set-point
-        v_sp = v_ref + self._kp_pos * (p_ref - p)
-        h = math.hypot(v_sp[0], v_sp[1])
+        sx = v_ref[0] + kpx * (p_ref[0] - p[0])
+        sy = v_ref[1] + kpy * (p_ref[1] - p[1])
+        sz = v_ref[2] + kpz * (p_ref[2] - p[2])
+        h = math.hypot(sx, sy)
         if h > g.vel_max_xy:
-            v_sp[:2] *= g.vel_max_xy / h
-        v_sp[2] = min(max(v_sp[2], -g.vel_max_z), g.vel_max_z)
-        # velocity PID -> acceleration
-        e_v = v_sp - v
+            scale = g.vel_max_xy / h
+            sx, sy = sx * scale, sy * scale
+        sz = min(max(sz, -g.vel_max_z), g.vel_max_z)
+        # velocity PID -> acceleration (D on the low-passed measured acceleration)
+        vx, vy, vz = v
+        ex, ey, ez = sx - vx, sy - vy, sz - vz
+        dx, dy, dz = self._dv
         if self._v_prev is not None:
-            self._dv += self._lpf * ((v - self._v_prev) / dt - self._dv)
-        self._v_prev = v.copy()
-        a_sp = self._kp_vel * e_v + self.i_vel - self._kd_vel * self._dv
-        self.i_vel = np.clip(self.i_vel + self._ki_vel * e_v * dt, -g.vel_i_max, g.vel_i_max)
+            c, (ux, uy, uz) = self._lpf_v, self._v_prev
+            dx += c * ((vx - ux) / dt - dx)
+            dy += c * ((vy - uy) / dt - dy)
+            dz += c * ((vz - uz) / dt - dz)
+            self._dv = (dx, dy, dz)
+        self._v_prev = (vx, vy, vz)
+        (kx, ky, kz), (ix, iy, iz) = self._kp_vel, self.i_vel
+        (dgx, dgy, dgz), (jx, jy, jz), lim = self._kd_vel, self._ki_vel, g.vel_i_max
+        ax, ay, az = kx * ex + ix - dgx * dx, ky * ey + iy - dgy * dy, kz * ez + iz - dgz * dz
+        self.i_vel = (
+            min(max(ix + jx * ex * dt, -lim), lim),
+            min(max(iy + jy * ey * dt, -lim), lim),
+            min(max(iz + jz * ez * dt, -lim), lim),
+        )
         # thrust vector with tilt limit (vertical first)
-        F = self.mass * a_sp
-        F[2] = max(F[2] + self.mass * GRAVITY, 0.1 * self.mass * GRAVITY)
-        fh = math.hypot(F[0], F[1])
-        fh_max = F[2] * math.tan(g.tilt_max)
+        fx, fy = m * ax, m * ay
+        fz = max(m * az + m * GRAVITY, 0.1 * m * GRAVITY)
+        fh, fh_max = math.hypot(fx, fy), fz * self._tan_tilt
         if fh > fh_max:
-            F[:2] *= fh_max / fh
-        # desired attitude
-        b3 = F / math.sqrt(F @ F)
-        c = np.array([math.cos(yaw_ref), math.sin(yaw_ref), 0.0])
-        b2 = _cross(b3, c)
-        b2 /= math.sqrt(b2 @ b2)
-        R_sp = np.column_stack([_cross(b2, b3), b2, b3])
-        self.R_sp = R_sp
-        # attitude P on the SO(3) error -> rate set-point
-        E = R_sp.T @ R
-        E = E - E.T
-        e_R = 0.5 * np.array([E[2, 1], E[0, 2], E[1, 0]])
-        w_sp = -self._kp_att * e_R + R[2, :] * yaw_rate_ref
-        w_sp = np.clip(w_sp, -self._rate_max, self._rate_max)
-        # rate PID -> torque
-        e_w = w_sp - w
-        if self._w_prev is not None:
-            self._dw += self._lpf * ((w - self._w_prev) / dt - self._dw)
-        self._w_prev = w.copy()
-        alpha = self._kp_rate * e_w + self.i_rate - self._kd_rate * self._dw
-        self.i_rate = np.clip(self.i_rate + self._ki_rate * e_w * dt, -g.rate_i_max, g.rate_i_max)
-        Jw = self.J @ w
-        self.torque = self.J @ alpha + _cross(w, Jw)
-        self.thrust = float(min(max(F @ R[:, 2], 0.0), self.mixer.n * self.mixer.f_max))
-        self.motors = self.mixer.mix(self.thrust, self.torque)
+            scale = fh_max / fh
+            fx, fy = fx * scale, fy * scale
+        self.F = (fx, fy, fz)
+        n = math.sqrt(fx * fx + fy * fy + fz * fz)
+        self._b3 = (fx / n, fy / n, fz / n)
+
+    def inner(
+        self, R: Sequence[float], w: Sequence[float], yaw_ref: float, yaw_rate_ref: float
+    ) -> list[float]:
+        """Attitude + rate loop and mixing (every tick): rotor thrusts [N].
+
+        Args:
+            R: body-to-world rotation, 9 floats row by row. w: body rates [rad/s] (3 floats).
+            yaw_ref, yaw_rate_ref: heading reference [rad] and its rate [rad/s].
+        """
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = R
+        wx, wy, wz = w
+        ka, ka_z, wm, wm_z, kp, kp_z, ki, ki_z, lim, dt, thrust_max = self._inner_k
+        # desired attitude: columns b1, b2, b3 with b3 along F, b2 = b3 x heading
+        b3x, b3y, b3z = self._b3
+        c, s = math.cos(yaw_ref), math.sin(yaw_ref)
+        b2x, b2y, b2z = -b3z * s, b3z * c, b3x * s - b3y * c
+        n = math.sqrt(b2x * b2x + b2y * b2y + b2z * b2z)
+        b2x, b2y, b2z = b2x / n, b2y / n, b2z / n
+        b1x, b1y, b1z = b2y * b3z - b2z * b3y, b2z * b3x - b2x * b3z, b2x * b3y - b2y * b3x
+        self._R_sp = (b1x, b2x, b3x, b1y, b2y, b3y, b1z, b2z, b3z)
+        # attitude P on e_R = vee(E - E^T) / 2, E = R_sp^T R: E_ij = b_i . (column j of R);
+        # rate set-point = -k e_R + yaw-rate feed-forward, clipped
+        ex = 0.5 * ((b3x * r01 + b3y * r11 + b3z * r21) - (b2x * r02 + b2y * r12 + b2z * r22))
+        ey = 0.5 * ((b1x * r02 + b1y * r12 + b1z * r22) - (b3x * r00 + b3y * r10 + b3z * r20))
+        ez = 0.5 * ((b2x * r00 + b2y * r10 + b2z * r20) - (b1x * r01 + b1y * r11 + b1z * r21))
+        sx, sy, sz = (
+            -ka * ex + r20 * yaw_rate_ref,
+            -ka * ey + r21 * yaw_rate_ref,
+            -ka_z * ez + r22 * yaw_rate_ref,
+        )
+        sx = wm if sx > wm else (-wm if sx < -wm else sx)
+        sy = wm if sy > wm else (-wm if sy < -wm else sy)
+        sz = wm_z if sz > wm_z else (-wm_z if sz < -wm_z else sz)
+        # rate PI(D) -> angular acceleration; the integrator is clipped to +-lim
+        ex, ey, ez = sx - wx, sy - wy, sz - wz
+        ix, iy, iz = self.i_rate
+        ax, ay, az = kp * ex + ix, kp * ey + iy, kp_z * ez + iz
+        if self._rate_d_on:
+            ax, ay, az = self._rate_d(wx, wy, wz, ax, ay, az)
+        ix, iy, iz = ix + ki * ex * dt, iy + ki * ey * dt, iz + ki_z * ez * dt
+        self.i_rate = (
+            lim if ix > lim else (-lim if ix < -lim else ix),
+            lim if iy > lim else (-lim if iy < -lim else iy),
+            lim if iz > lim else (-lim if iz < -lim else iz),
+        )
+        # torque = J alpha + w x (J w); collective thrust = F . b3 (current body z)
+        j00, j01, j02, j10, j11, j12, j20, j21, j22 = self._J
+        hx = j00 * wx + j01 * wy + j02 * wz
+        hy = j10 * wx + j11 * wy + j12 * wz
+        hz = j20 * wx + j21 * wy + j22 * wz
+        tx = j00 * ax + j01 * ay + j02 * az + (wy * hz - wz * hy)
+        ty = j10 * ax + j11 * ay + j12 * az + (wz * hx - wx * hz)
+        tz = j20 * ax + j21 * ay + j22 * az + (wx * hy - wy * hx)
+        self.torque = (tx, ty, tz)
+        fx, fy, fz = self.F
+        thrust = fx * r02 + fy * r12 + fz * r22
+        self.thrust = thrust = (
+            thrust_max if thrust > thrust_max else (thrust if thrust > 0.0 else 0.0)
+        )
+        self._ticks += 1
+        self.motors = self.mixer.mix_floats(thrust, tx, ty, tz)
         return self.motors
+
+    def _rate_d(self, wx: float, wy: float, wz: float, ax: float, ay: float, az: float) -> Vec3:
+        """Rate D term: ``alpha - k_d dw`` with ``dw`` the low-passed angular acceleration."""
+        dx, dy, dz = self._dw
+        if self._w_prev is not None:
+            c, dt, (ux, uy, uz) = self._lpf_w, self.dt, self._w_prev
+            dx += c * ((wx - ux) / dt - dx)
+            dy += c * ((wy - uy) / dt - dy)
+            dz += c * ((wz - uz) / dt - dz)
+            self._dw = (dx, dy, dz)
+        self._w_prev = (wx, wy, wz)
+        kx, ky, kz = self._kd_rate
+        return ax - kx * dx, ay - ky * dy, az - kz * dz

@@ -1,23 +1,31 @@
 """Full-dynamics simulator: MuJoCo model of the UAM flown by a PX4-like inner loop.
 
-Each physics step (``1 / rate_hz`` s) the flight controller and the arm servos run once on
-the true state; the references move linearly within a control period from the plan's first
-state along the command ``u`` (with ``u`` as velocity feed-forward). Inactive platform DoFs
-are held at their fixed values. Joint servos are MuJoCo position actuators (PD, see
-``mjcf.servo_gains``) whose set-point is shifted to add velocity feed-forward and an
-integral term: ``tau = kp (q_ref - q) + kv (u_q - qdot) + ki int (q_ref - q)``.
+Rates (PX4-like multi-rate inner loop): every physics step (``1 / rate_hz`` s, 500 Hz by
+default) the flight controller's attitude/rate loop, the mixer and the arm servos run once on
+the true state (between ``mj_step1`` and ``mj_step2``); the controller's position/velocity
+loop runs every ``outer_every`` physics steps (``outer_rate_hz``, 100 Hz by default, rounded
+to an integer divisor of ``rate_hz``; PX4 runs it at 50-100 Hz) and its thrust-vector
+set-point is held in between. The references move linearly within a control period from the
+plan's first state along the command ``u`` (with ``u`` as velocity feed-forward). Inactive
+platform DoFs are held at their fixed values. Joint servos are MuJoCo position actuators (PD,
+see ``mjcf.servo_gains``) whose set-point is shifted every physics step to add velocity
+feed-forward and an integral term: ``tau = kp (q_ref - q) + kv (u_q - qdot) + ki int (q_ref -
+q)``. The per-step Python works on floats (no NumPy on 3-vectors, no per-step arrays).
 
 ``arm_torque`` (extras) is the wrench the arm exerts on the base through the mount, from
 MuJoCo's ``cfrc_int`` of the first arm body (the force/torque its parent transmits to it,
 com-based: world orientation, reference point ``subtree_com`` of the tree root), moved to the
 base origin (= platform CoM), negated, expressed in the body frame; its xy magnitude is
-averaged over the control period.
+averaged over the control period, sampled at the outer-loop rate (every ``outer_every``
+physics steps, the last sample at the end of the period). ``motor_i`` and ``thrust_total``
+are exact means over every physics step of the period.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from operator import add
 from pathlib import Path
 from typing import Any
 
@@ -31,18 +39,16 @@ from aeromanip.sim.flight_controller import FlightController, FlightGains, Mixer
 from aeromanip.sim.mjcf import FREE_JOINT, K_M, SERVO_HZ, max_rotor_thrust, robot_to_mjcf
 
 NOISE_KEYS = ("position", "yaw", "joints")
-OPTION_KEYS = ("rate_hz", "rotors", "seed", "noise", "gains", "servo_hz", "servo_i")
+OPTION_KEYS = (
+    "rate_hz", "outer_rate_hz", "rotors", "seed", "noise", "gains", "servo_hz", "servo_i"
+)  # fmt: skip
 SERVO_I = 4.0  # [1/s] servo integral gain relative to kp (ki = SERVO_I kp)
+OUTER_RATE_HZ = 100.0  # [Hz] default rate of the position/velocity loop
+MIN_OUTER_RATE_HZ = 10.0  # [Hz] lowest accepted outer-loop rate (position bandwidth ~0.35 Hz)
 
 
 def _yaw_of(qw: float, qx: float, qy: float, qz: float) -> float:
     return math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
 
 
 def _number(value: Any, path: str, low: float | None = None) -> float:
@@ -58,7 +64,10 @@ class PhysicsSimulator(Simulator):
 
     Args:
         spec: the robot.
-        rate_hz: physics and inner-loop rate [Hz] (>= 100).
+        rate_hz: physics and inner-loop (attitude, rate, mixer, servos) rate [Hz] (>= 100).
+        outer_rate_hz: position/velocity-loop rate [Hz], in ``[10, rate_hz]``; rounded to
+            ``rate_hz / outer_every`` with ``outer_every`` an integer (``rate_hz`` to run it
+            every physics step).
         noise: measurement noise std devs ``{"position": m, "yaw": rad, "joints": rad}``.
         seed: seed of the noise generator (re-seeded at every ``reset``).
         rotors: number of rotors (even, >= 4), X layout.
@@ -69,6 +78,7 @@ class PhysicsSimulator(Simulator):
     Attributes:
         model, data: the MuJoCo model and data (open ``to_xml()`` in ``mujoco.viewer``).
         controller: the ``FlightController``.
+        outer_every: physics steps per outer-loop tick; outer_rate_hz: its actual rate [Hz].
     """
 
     def __init__(
@@ -76,6 +86,7 @@ class PhysicsSimulator(Simulator):
         spec: RobotSpec,
         *,
         rate_hz: float = 500.0,
+        outer_rate_hz: float = OUTER_RATE_HZ,
         noise: Mapping[str, float] | None = None,
         seed: int = 0,
         rotors: int = 4,
@@ -85,6 +96,13 @@ class PhysicsSimulator(Simulator):
     ) -> None:
         self.spec = spec
         self.rate_hz = _number(rate_hz, "physics.rate_hz", 100.0)
+        outer = _number(outer_rate_hz, "physics.outer_rate_hz", MIN_OUTER_RATE_HZ)
+        if outer > self.rate_hz:
+            raise ConfigError(
+                f"physics.outer_rate_hz: must be <= physics.rate_hz ({self.rate_hz}), got {outer}"
+            )
+        self.outer_every = max(1, round(self.rate_hz / outer))
+        self.outer_rate_hz = self.rate_hz / self.outer_every
         self.noise = {k: 0.0 for k in NOISE_KEYS}
         if noise is not None and not isinstance(noise, Mapping):
             raise ConfigError(f"physics.noise: must be a table, got {noise!r}")
@@ -115,6 +133,19 @@ class PhysicsSimulator(Simulator):
         self._kv = -m.actuator_biasprm[servo, 2].copy()
         self._q_lo = np.array([j.lower for j in spec.joints])
         self._q_hi = np.array([j.upper for j in spec.joints])
+        # per-joint constants of the servo loop and views into MjData for the per-step Python
+        self._servos = tuple(
+            zip(
+                self._q_adr.tolist(), self._q_lo.tolist(), self._q_hi.tolist(),
+                self._kp.tolist(), self._kv.tolist(), (self.servo_i * self._kp).tolist(),
+                strict=True,
+            )
+        )  # fmt: skip
+        d = self.data
+        self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
+        root = m.body_rootid[self._arm1]
+        self._arm_views = (d.cfrc_int[self._arm1], d.subtree_com[root], d.xpos[self._base])
+        self._xmat_base = d.xmat[self._base]
         self._n_p = spec.n_platform
         self._pos_idx = [
             (i, PLATFORM_DOFS.index(d)) for i, d in enumerate(spec.platform.dofs) if d != "yaw"
@@ -125,7 +156,7 @@ class PhysicsSimulator(Simulator):
         self.mixer = Mixer(positions, spins, K_M, max_rotor_thrust(spec, rotors))
         self.mass = float(m.body_subtreemass[self._base])
         self.gains = gains or FlightGains()
-        self.controller = FlightController(self.mass, np.eye(3), self.mixer, self.h, self.gains)
+        self.controller = self._make_controller(np.eye(3))
         x0 = np.zeros(spec.nx)
         for i, d in enumerate(spec.platform.dofs):
             x0[i] = 1.0 if d == "z" else 0.0
@@ -149,6 +180,11 @@ class PhysicsSimulator(Simulator):
         if "gains" in kwargs:
             kwargs["gains"] = FlightGains.from_options(dict(kwargs["gains"]))
         return cls(spec, **kwargs)
+
+    def _make_controller(self, inertia: np.ndarray) -> FlightController:
+        return FlightController(
+            self.mass, inertia, self.mixer, self.h, self.gains, outer_every=self.outer_every
+        )
 
     # --- Simulator interface -------------------------------------------------------------
 
@@ -178,20 +214,19 @@ class PhysicsSimulator(Simulator):
         # composite inertia about the base origin (body frame) and the gravity trims
         M = np.zeros((m.nv, m.nv))
         mujoco.mj_fullM(m, d, M)
-        self.controller = FlightController(
-            self.mass, M[fv + 3 : fv + 6, fv + 3 : fv + 6], self.mixer, self.h, self.gains
-        )
+        self.controller = self._make_controller(M[fv + 3 : fv + 6, fv + 3 : fv + 6])
         self.controller.reset(torque_trim=d.qfrc_bias[fv + 3 : fv + 6])
-        self._servo_int = d.qfrc_bias[self._v_adr].copy()
+        servo_int = d.qfrc_bias[self._v_adr].copy()
+        self._servo_int = servo_int.tolist()
         d.ctrl[: self.rotors] = self.controller.motors
-        d.ctrl[self.rotors :] = x0[self._n_p :] + self._servo_int / self._kp
+        d.ctrl[self.rotors :] = x0[self._n_p :] + servo_int / self._kp
         mujoco.mj_forward(m, d)
         mujoco.mj_rnePostConstraint(m, d)
         self._yaw = pose["yaw"]
         self.time = 0.0
         self.rng = np.random.default_rng(self.seed)
         self._arm_torque = self._arm_torque_now()
-        self._motor_mean = self.controller.motors.copy()
+        self._motor_mean = np.array(self.controller.motors)
 
     def advance(self, u: np.ndarray, plan_x: np.ndarray, dt: float) -> None:
         """Fly ``dt`` [s] (a whole number of physics steps) tracking ramps from ``plan_x[0]``."""
@@ -209,36 +244,51 @@ class PhysicsSimulator(Simulator):
         if not (np.all(np.isfinite(u)) and np.all(np.isfinite(start))):
             raise StateError("command: u and plan_x[0] must be finite")
         m, d, fc = self.model, self.data, self.controller
-        p0 = np.array([self._fixed["x"], self._fixed["y"], self._fixed["z"]])
-        v_ff = np.zeros(3)
+        p_ref = [self._fixed["x"], self._fixed["y"], self._fixed["z"]]
+        v_ff = [0.0, 0.0, 0.0]
         for i, axis in self._pos_idx:
-            p0[axis], v_ff[axis] = start[i], u[i]
+            p_ref[axis], v_ff[axis] = float(start[i]), float(u[i])
+        (px, py, pz), (vx, vy, vz) = p_ref, v_ff
         yi = self._yaw_idx
         yaw0, yaw_rate = (self._fixed["yaw"], 0.0) if yi is None else (start[yi], u[yi])
-        q0, uq = start[self._n_p :], u[self._n_p :]
-        fq, fv, nr = self._free_q, self._free_v, self.rotors
-        kp, kv, ki = self._kp, self._kv, self.servo_i * self._kp
-        torque_sum, motor_sum = 0.0, np.zeros(nr)
+        yaw0, yaw_rate = float(yaw0), float(yaw_rate)
+        # per joint: qpos address, limits, 1 / kp, ki h, start and rate of the ramp, kv u_q
+        servos = [
+            (adr, lo, hi, 1.0 / kp, ki * self.h, q0, uq, kv * uq)
+            for (adr, lo, hi, kp, kv, ki), q0, uq in zip(
+                self._servos, start[self._n_p :].tolist(), u[self._n_p :].tolist(), strict=True
+            )
+        ]
+        servo_int = self._servo_int
+        fq, fv, h, every = self._free_q, self._free_v, self.h, fc.outer_every
+        qpos, qvel, ctrl, xmat = self._qpos, self._qvel, self._ctrl, self._xmat_base
+        outer, inner, step1, step2 = fc.outer, fc.inner, mujoco.mj_step1, mujoco.mj_step2
+        torque_sum, samples, motor_sum = 0.0, 0, [0.0] * self.rotors
         for k in range(n):
-            t = k * self.h
-            mujoco.mj_step1(m, d)
-            R = d.xmat[self._base].reshape(3, 3)
-            motors = fc.update(
-                d.qpos[fq : fq + 3].copy(), d.qvel[fv : fv + 3].copy(), R,
-                d.qvel[fv + 3 : fv + 6].copy(), p0 + v_ff * t, v_ff, yaw0 + yaw_rate * t, yaw_rate,
-            )  # fmt: skip
-            d.ctrl[:nr] = motors
-            q_ref = q0 + uq * t
-            ff = np.where((q_ref > self._q_lo) & (q_ref < self._q_hi), uq, 0.0)
-            q_ref = np.clip(q_ref, self._q_lo, self._q_hi)
-            self._servo_int += ki * (q_ref - d.qpos[self._q_adr]) * self.h
-            d.ctrl[nr:] = q_ref + (kv * ff + self._servo_int) / kp
-            mujoco.mj_step2(m, d)
-            mujoco.mj_rnePostConstraint(m, d)
-            torque_sum += self._arm_torque_now()
-            motor_sum += motors
-        self._arm_torque = torque_sum / n
-        self._motor_mean = motor_sum / n
+            t = k * h
+            step1(m, d)  # kinematics of the current state: the base rotation in xmat
+            qp, qv = qpos.tolist(), qvel.tolist()
+            if fc.outer_due:
+                outer(
+                    qp[fq : fq + 3], qv[fv : fv + 3], (px + vx * t, py + vy * t, pz + vz * t), v_ff
+                )
+            motors = inner(xmat.tolist(), qv[fv + 3 : fv + 6], yaw0 + yaw_rate * t, yaw_rate)
+            cmd = motors.copy()
+            for j, (adr, lo, hi, kp_inv, ki_h, q0, uq, ff) in enumerate(servos):
+                q_ref = q0 + uq * t
+                if not lo < q_ref < hi:  # at a limit: hold it, no feed-forward
+                    q_ref, ff = (lo if q_ref <= lo else hi), 0.0
+                servo_int[j] = integral = servo_int[j] + ki_h * (q_ref - qp[adr])
+                cmd.append(q_ref + (ff + integral) * kp_inv)
+            ctrl[:] = cmd
+            step2(m, d)
+            motor_sum = list(map(add, motor_sum, motors))
+            if (n - 1 - k) % every == 0:  # arm torque at the outer rate, ending the period
+                mujoco.mj_rnePostConstraint(m, d)
+                torque_sum += self._arm_torque_now()
+                samples += 1
+        self._arm_torque = torque_sum / samples
+        self._motor_mean = np.array(motor_sum) / n
         self.time += n * self.h
         self.true_state()  # keeps the unwrapped yaw current
 
@@ -291,13 +341,17 @@ class PhysicsSimulator(Simulator):
         return self.data.site_xpos[self._ee].copy()
 
     def _arm_torque_now(self) -> float:
-        """|xy| of the arm's moment on the base about the base origin, body frame [N m]."""
-        d = self.data
-        wrench = d.cfrc_int[self._arm1]
-        c = d.subtree_com[self.model.body_rootid[self._arm1]]
-        tau = wrench[:3] + _cross(c - d.xpos[self._base], wrench[3:])
-        tau_b = d.xmat[self._base].reshape(3, 3).T @ tau
-        return math.hypot(tau_b[0], tau_b[1])
+        """|xy| of the arm's moment on the base about the base origin, body frame [N m].
+
+        Uses the quantities of the last forward pass (``mj_rnePostConstraint`` must have run).
+        """
+        wrench, com, base = self._arm_views
+        tx, ty, tz, fx, fy, fz = wrench.tolist()
+        com, base = com.tolist(), base.tolist()
+        rx, ry, rz = com[0] - base[0], com[1] - base[1], com[2] - base[2]
+        tx, ty, tz = tx + (ry * fz - rz * fy), ty + (rz * fx - rx * fz), tz + (rx * fy - ry * fx)
+        r00, r01, _, r10, r11, _, r20, r21, _ = self._xmat_base.tolist()
+        return math.hypot(r00 * tx + r10 * ty + r20 * tz, r01 * tx + r11 * ty + r21 * tz)
 
     def to_xml(self) -> str:
         """The MJCF text of the simulated model."""
