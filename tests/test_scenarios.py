@@ -31,7 +31,8 @@ def waypoints(tmp_path_factory):
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
     out = tmp_path_factory.mktemp("flight")
-    run_scenarios(load_scenarios("flight", ["duration=90"]), out, progress=False)
+    run_scenarios(load_scenarios("flight", ["duration=90", "sim='kinematic'"]), out,
+                  progress=False)
     return out
 
 

@@ -82,6 +82,22 @@ class Bounds:
             xl[i], xu[i] = float(box[0]), float(box[1])
         return cls(names, xl, xu, ul, uu)
 
+    def tightened(self, margins: Mapping[str, float]) -> Bounds:
+        """The state bounds shrunk by ``margins`` (state name -> margin [m or rad]).
+
+        Constraint tightening: a controller planning inside the tightened box keeps the
+        real system, which lags its references a little, inside the true one.
+        """
+        lo, hi = self.x_lower.copy(), self.x_upper.copy()
+        for name, m in margins.items():
+            if name not in self.names:
+                raise ConfigError(f"bounds margin: unknown state {name!r}")
+            i = self.names.index(name)
+            lo[i], hi[i] = lo[i] + m, hi[i] - m
+            if lo[i] > hi[i]:
+                raise ConfigError(f"bounds margin: {m} closes the bounds of {name}")
+        return Bounds(self.names, lo, hi, self.u_lower.copy(), self.u_upper.copy())
+
     def as_dict(self) -> dict[str, list[float]]:
         """Finite bounds keyed like the run log columns: ``q1``, ``x``, ``u_q1``, ..."""
         out = {}

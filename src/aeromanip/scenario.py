@@ -6,7 +6,8 @@ Layout (see the built-in files in ``aeromanip/scenarios/`` for documented exampl
     robot = "x8-3dof"  |  robot = "path/robot.toml"  |  [robot] ... (inline robot table)
     [controller]  strategy, backend, horizon, dt, time_budget, [hierarchy], [solver_options]
     [bounds]      joints, velocity (bools), platform_box = { z = [lo, hi], ... },
-                  platform_margin [m] (the NMPC plans inside the box shrunk by it)
+                  platform_margin [m], joint_margin [rad] (the NMPC plans inside the
+                  box and joint limits shrunk by them)
     [clearance]   d_min, points  (omit the table for no self-collision constraint)
     [reference]   kind = "sinusoids" | "waypoints" | "lissajous" | "csv" | "constant" ...
     [tasks.NAME]  kind (default NAME), weight, terminal_weight, level | regularizer = true,
@@ -198,18 +199,21 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
     bt = t.table("bounds", {})
     box_t = bt.table("platform_box", {})
     box = {k: box_t.floats(k, size=2, finite=False) for k in box_t.data}
-    margin = bt.float("platform_margin", 0.0)
-    if margin < 0:
-        raise ConfigError(f"{bt.key('platform_margin')}: must be >= 0, got {margin}")
+    margins = {
+        "platform_margin": bt.float("platform_margin", 0.0),
+        "joint_margin": bt.float("joint_margin", 0.0),
+    }
+    for key, m in margins.items():
+        if m < 0:
+            raise ConfigError(f"{bt.key(key)}: must be >= 0, got {m}")
     flags = {"joint_limits": bt.bool("joints", True), "velocity_limits": bt.bool("velocity", True)}
     limits = Bounds.from_robot(robot, platform_box=box, **flags)
-    # constraint tightening: the NMPC plans inside the box shrunk by the margin, so that
-    # the real platform, lagging its references a little, stays inside the true box
-    tight = {k: (lo + margin, hi - margin) for k, (lo, hi) in box.items()}
-    for k, (lo, hi) in tight.items():
-        if lo > hi:
-            raise ConfigError(f"{bt.key('platform_margin')}: {margin} m closes platform_box.{k}")
-    bounds = Bounds.from_robot(robot, platform_box=tight, **flags)
+    # constraint tightening: the NMPC plans inside bounds shrunk by the margins, so that the
+    # real robot, lagging its references a little (physics), stays inside the true ones
+    shrink = {d: margins["platform_margin"] for d in box}
+    if flags["joint_limits"]:
+        shrink.update({f"q{i + 1}": margins["joint_margin"] for i in range(robot.n_joints)})
+    bounds = limits.tightened(shrink)
     bt.done()
     problem = Problem(robot, horizon, dt, bounds)
 
