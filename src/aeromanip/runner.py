@@ -198,12 +198,11 @@ def write_run(sc: Scenario, log: RunLog, out_dir: Path, figures: bool = True) ->
 
 
 def _toml_safe(v: Any) -> Any:
+    """Drop ``None`` values (TOML has no null); everything else tomli_w writes as is."""
     if isinstance(v, dict):
         return {k: _toml_safe(x) for k, x in v.items() if x is not None}
     if isinstance(v, list | tuple):
         return [_toml_safe(x) for x in v]
-    if isinstance(v, float) and not np.isfinite(v):
-        return v  # tomli_w writes inf/nan as TOML's inf/nan
     return v
 
 
