@@ -55,7 +55,8 @@ class Controller:
     Args:
         problem: tasks, constraints, horizon.
         strategy: ``"weighted"`` or ``"hierarchical"``.
-        backend: NLP solver, ``"ipopt"`` or ``"fatrop"``.
+        backend: NLP solver: ``"ipopt"``, ``"fatrop"``, ``"sqp"`` (Gauss-Newton SQP, fast) or
+            ``"sqp-rti"`` (one SQP iteration per step); see ``aeromanip.solvers``.
         solver_options: extra options for the backend.
         hierarchy: options of ``Hierarchical`` (``mode``, ``rel_tol``, ``abs_tol``).
         time_budget_s: a solve slower than this is treated as failed (None: no budget).
@@ -90,7 +91,7 @@ class Controller:
         """Forget plans and warm starts; ``u_prev`` is the command applied so far (default 0)."""
         self.u_prev = np.zeros(self.nx) if u_prev is None else self._vector(u_prev, "u_prev")
         self._plan: tuple[np.ndarray, np.ndarray, int] | None = None  # X, U, steps since
-        self._guesses: list[np.ndarray] | None = None
+        self._level_w: list[np.ndarray] = []  # each level's last solution (warm starts)
         for st in self.strategy.stages:
             st.warm = None
 
@@ -106,17 +107,29 @@ class Controller:
         return a
 
     def _initial_guess(self, x0: np.ndarray) -> np.ndarray:
-        tr = self.strategy.transcription
+        """The last plan moved one step on, or (without one) rest at ``x0``."""
+        if self._plan is not None:
+            return self._shifted(x0, *self._plan[:2])
         N = self.problem.horizon
-        if self._plan is None:
-            X = np.repeat(x0[None, :], N + 1, axis=0)
-            U = np.zeros((N, self.nx))
-        else:
-            Xp, Up, _ = self._plan
-            X = np.vstack([Xp[1:], Xp[-1:]])
-            U = np.vstack([Up[1:], Up[-1:]])
-            X[0] = x0
-        return tr.pack(X, U, self.u_prev)
+        X, U = np.repeat(x0[None, :], N + 1, axis=0), np.zeros((N, self.nx))
+        return self.strategy.transcription.pack(X, U, self.u_prev)
+
+    def _shifted(self, x0: np.ndarray, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """A plan moved one step on (last command repeated), starting from ``x0``."""
+        X = np.vstack([X[1:], X[-1:]])
+        U = np.vstack([U[1:], U[-1:]])
+        X[0] = x0
+        return self.strategy.transcription.pack(X, U, self.u_prev)
+
+    def _guesses(self, x0: np.ndarray) -> list[np.ndarray | None]:
+        """Per level: its own last solution shifted, if any (level 0: else the last plan)."""
+        tr = self.strategy.transcription
+        n = len(self.strategy.stages)
+        own = [self._shifted(x0, *tr.unpack(w)) for w in self._level_w[:n]]
+        guesses: list[np.ndarray | None] = own + [None] * (n - len(own))
+        if guesses[0] is None:
+            guesses[0] = self._initial_guess(x0)
+        return guesses
 
     def step(self, state: Any, t: float) -> Command:
         """Solve the NMPC at time ``t`` [s] from ``state`` and return the command to apply."""
@@ -125,8 +138,7 @@ class Controller:
             raise StateError(f"t: must be finite, got {t}")
         tr = self.strategy.transcription
         p = tr.parameters(x0, self.u_prev, self.problem.stage_params(t))
-        guess = self._initial_guess(x0)
-        res: StrategyResult = self.strategy.solve(p, [guess] * len(self.strategy.stages))
+        res: StrategyResult = self.strategy.solve(p, self._guesses(x0))
         message = "" if res.status == "ok" else res.status
         ok = res.success
         if ok and self.time_budget_s is not None and res.solve_time_s > self.time_budget_s:
@@ -136,15 +148,17 @@ class Controller:
             )
         if ok:
             X, U = tr.unpack(res.w)
-            costs = np.asarray(tr.stage_costs(res.w, p)).sum(axis=1)
+            costs = tr.costs(res.w, p).sum(axis=1)
             task_costs = {
                 e.name: float(c) for e, c in zip(self.problem.entries, costs, strict=True)
             }
             status = "partial" if res.status.startswith("partial") else "ok"
             self._plan = (X, U, 0)
+            self._level_w = list(res.level_w)
             u = U[0].copy()
         else:
             u, X, U, status = self._fallback(x0)
+            self._level_w = []
             task_costs = {e.name: float("nan") for e in self.problem.entries}
             log.warning("t=%.3f s: solve failed (%s); %s", t, message, status)
         self.u_prev = u

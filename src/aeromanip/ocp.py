@@ -26,6 +26,7 @@ from aeromanip.robot.spec import RobotSpec
 from aeromanip.tasks.base import Stage, Task
 
 Weight = float | Sequence[float] | Mapping[str, float]
+MODES = ("stagewise", "total", "residual")  # how a hierarchy level keeps higher optima
 
 
 @dataclass
@@ -154,9 +155,10 @@ class Transcription:
         problem: the problem.
         objective: entries whose weighted residuals make the cost.
         constrained: groups of entries (higher levels) whose cost must stay within bounds
-            given at solve time: per stage (``mode="stagewise"``, N+1 rows per group) or
-            in total (``mode="total"``, one row per group).
-        mode: ``"stagewise"`` or ``"total"``.
+            given at solve time: per stage (``mode="stagewise"``, N+1 rows per group), in
+            total (``mode="total"``, one row per group), or their weighted residual vectors
+            per stage (``mode="residual"``, one row per residual entry and stage).
+        mode: ``"stagewise"``, ``"total"`` or ``"residual"``.
     """
 
     def __init__(
@@ -166,8 +168,8 @@ class Transcription:
         constrained: Sequence[Sequence[TaskEntry]] = (),
         mode: str = "stagewise",
     ) -> None:
-        if mode not in ("stagewise", "total"):
-            raise ConfigError(f"hierarchy.mode: {mode!r} is not 'stagewise' or 'total'")
+        if mode not in MODES:
+            raise ConfigError(f"hierarchy.mode: {mode!r} is not one of {MODES}")
         self.problem = problem
         self.mode = mode
         kin, N, nx = problem.kin, problem.horizon, problem.kin.nx
@@ -185,23 +187,29 @@ class Transcription:
             a, b = offsets[entry.name] if entry else (0, 0)
             return Stage(kin, z[:nx], u if with_u else None, z[nx:], pk[a:b], problem.dt)
 
-        def costs(with_u: bool) -> list[ca.SX]:
+        def residuals(with_u: bool) -> list[ca.SX]:
+            """Weighted residuals ``sqrt(W) r`` per task (cost = their squared norm)."""
             out = []
             for e in problem.entries:
                 if with_u:
                     r, w = e.task.residual(stage(e, True)), e.weight
                 else:
                     r, w = e.task.terminal_residual(stage(e, False)), e.terminal_weight
-                out.append(ca.SX(0) if r is None else ca.dot(ca.DM(w), r * r))
+                out.append(ca.SX(0, 1) if r is None else ca.sqrt(ca.DM(w)) * ca.vec(r))
             return out
 
         idx = {e.name: i for i, e in enumerate(problem.entries)}
         obj = [idx[e.name] for e in objective]
         groups = [[idx[e.name] for e in g] for g in constrained]
-        c_stage, c_term = costs(True), costs(False)
+        r_stage, r_term = residuals(True), residuals(False)
+        c_stage = [ca.sumsqr(r) for r in r_stage]
+        c_term = [ca.sumsqr(r) for r in r_term]
 
         def pick(c: list[ca.SX], ids: list[int]) -> ca.SX:
             return sum((c[i] for i in ids), ca.SX(0))
+
+        def stack(r: list[ca.SX], ids: list[int]) -> ca.SX:
+            return ca.vertcat(*[r[i] for i in ids]) if ids else ca.SX(0, 1)
 
         path_s, path_t, lo_s, hi_s, lo_t, hi_t = [], [], [], [], [], []
         for con in problem.constraints:
@@ -233,6 +241,15 @@ class Transcription:
                 ca.vertcat(*c_term),
             ],
         )
+        # Gauss-Newton data: the objective's and each constrained group's weighted residuals
+        self.r_stage = ca.Function(
+            "stage_residuals",
+            [z, u, pk],
+            [stack(r_stage, obj), *[stack(r_stage, g) for g in groups]],
+        )
+        self.r_term = ca.Function(
+            "terminal_residuals", [z, pk], [stack(r_term, obj), *[stack(r_term, g) for g in groups]]
+        )
         self._build(groups, lo_s, hi_s, lo_t, hi_t)
 
     def _build(self, groups: list, lo_s: list, hi_s: list, lo_t: list, hi_t: list) -> None:
@@ -247,6 +264,12 @@ class Transcription:
         inf_z = np.full(nz, np.inf)
         self.hier_rows: list[list[int]] = [[] for _ in groups]
         f_total, stage_costs, hier_sum = ca.SX(0), [], [ca.SX(0) for _ in groups]
+        res_obj: list[ca.SX] = []
+        res_hier: list[list[ca.SX]] = [[] for _ in groups]  # per group, per stage
+        #: (row of g, weighted residuals whose squared norm that hierarchy row is)
+        self.hier_residuals: list[tuple[int, ca.SX]] = []
+        self.stage_ng: list[int] = []  # rows per stage besides the gap-closing ones
+        self.gap_rows: list[int] = []  # the rows z[k+1] = f(z[k], u[k])
         n_g = 0
 
         def add_g(expr: ca.SX, lo: np.ndarray, hi: np.ndarray) -> list[int]:
@@ -256,11 +279,16 @@ class Transcription:
             ubg.append(np.asarray(hi, dtype=float).ravel())
             rows = list(range(n_g, n_g + expr.numel()))
             n_g += expr.numel()
+            self.g_stage += [stage_of_rows] * len(rows)
             return rows
 
         lo_s_v = np.concatenate(lo_s) if lo_s else np.zeros(0)
         hi_s_v = np.concatenate(hi_s) if hi_s else np.zeros(0)
+        #: the stage each row of g belongs to (-1: couples every stage)
+        self.g_stage: list[int] = []
+        stage_of_rows = 0
         for k in range(N + 1):
+            stage_of_rows = k
             w.append(Z[k])
             if k == 0:
                 lbw.append(-inf_z)
@@ -273,13 +301,20 @@ class Transcription:
                 lbw.append(b.u_lower)
                 ubw.append(b.u_upper)
                 cost, hier, path, per_task = self.f_stage(Z[k], U[k], P[:, k])
+                res = self.r_stage(Z[k], U[k], P[:, k])
             else:
                 cost, hier, path, per_task = self.f_term(Z[k], P[:, k])
+                res = self.r_term(Z[k], P[:, k])
+            res = res if isinstance(res, tuple | list) else [res]
+            res_obj.append(res[0])
+            n_stage_start = n_g
             f_total += cost
             stage_costs.append(per_task)
             if k < N:  # gap-closing rows first in each stage (what fatrop detects)
                 x_next = Z[k][:nx] + dt * U[k]
-                add_g(Z[k + 1] - ca.vertcat(x_next, U[k]), np.zeros(nz), np.zeros(nz))
+                self.gap_rows += add_g(
+                    Z[k + 1] - ca.vertcat(x_next, U[k]), np.zeros(nz), np.zeros(nz)
+                )
             if k > 0 and path.numel():
                 if k < N:
                     add_g(path, lo_s_v, hi_s_v)
@@ -287,13 +322,27 @@ class Transcription:
                     add_g(path, np.concatenate(lo_t), np.concatenate(hi_t))
             for j in range(len(groups)):
                 if self.mode == "stagewise":
-                    self.hier_rows[j] += add_g(hier[j], [-np.inf], [np.inf])
+                    rows = add_g(hier[j], [-np.inf], [np.inf])
+                    self.hier_rows[j] += rows
+                    self.hier_residuals.append((rows[0], res[1 + j]))
+                elif self.mode == "residual":  # linear in the residuals: no curvature term
+                    n_r = res[1 + j].numel()
+                    self.hier_rows[j] += add_g(
+                        res[1 + j], -np.full(n_r, np.inf), np.full(n_r, np.inf)
+                    )
                 else:
                     hier_sum[j] += hier[j]
+                    res_hier[j].append(res[1 + j])
+            self.stage_ng.append(n_g - n_stage_start - (nz if k < N else 0))
         if self.mode == "total":
             for j in range(len(groups)):
+                stage_of_rows = -1
                 self.hier_rows[j] = add_g(hier_sum[j], [-np.inf], [np.inf])
+                self.hier_residuals.append((self.hier_rows[j][0], ca.vertcat(*res_hier[j])))
+            self.stage_ng = []  # not stage-wise: the last row couples every stage
         self.w = ca.vertcat(*w)
+        #: stacked weighted objective residuals (f = ||residuals||^2)
+        self.residuals = ca.vertcat(*res_obj)
         self.p = ca.vertcat(x0, u_prev, ca.vec(P))
         self.f = f_total
         self.g = ca.vertcat(*g)
@@ -303,9 +352,42 @@ class Transcription:
         self.equality = (self.lbg == self.ubg).tolist()
         # per task (rows) and stage (columns) weighted costs, for reports and hierarchy
         self.stage_costs = ca.Function(
-            "stage_costs", [self.w, self.p], [ca.horzcat(*stage_costs)], ["w", "p"], ["C"]
+            "stage_costs",
+            [self.w, self.p],
+            [ca.densify(ca.horzcat(*stage_costs))],
+            ["w", "p"],
+            ["C"],
         )
-        self.stride = nz + nx
+        self.stride = s = nz + nx
+        k = np.arange(N + 1)[:, None] * s
+        #: where X (N+1, nx), V (N+1, nx) and U (N, nx) sit in the variable vector
+        self.index_x = k + np.arange(nx)
+        self.index_v = k + nx + np.arange(nx)
+        self.index_u = k[:N] + nz + np.arange(nx)
+
+    def use_stage_costs(self, f: ca.Function) -> None:
+        """Evaluate ``stage_costs`` (and ``costs``) with ``f``, e.g. its compiled twin."""
+        self.stage_costs = f
+        self._costs_buf = None
+
+    def costs(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """``stage_costs(w, p)`` as an array (tasks x stages), without conversions."""
+        if getattr(self, "_costs_buf", None) is None:
+            f = self.stage_costs
+            buf, run = f.buffer()
+            args = [np.zeros(f.nnz_in(i)) for i in range(2)]
+            out = np.zeros(f.nnz_out(0))
+            for i, a in enumerate(args):
+                buf.set_arg(i, memoryview(a))
+            buf.set_res(0, memoryview(out))
+            self._costs_buf = (buf, run, args, out, f.size_out(0), f.sparsity_out(0).is_dense())
+        buf, run, args, out, shape, dense = self._costs_buf
+        if not dense:
+            return np.asarray(self.stage_costs(w, p))
+        args[0][:] = w
+        args[1][:] = p
+        run()
+        return out.reshape(shape, order="F").copy()
 
     def variable_bounds(self, x0: np.ndarray, u_prev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``lbw, ubw`` with the stage-0 augmented state pinned to ``[x0, u_prev]``."""
@@ -322,18 +404,13 @@ class Transcription:
     def unpack(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """States ``X`` (N+1, nx) and commands ``U`` (N, nx) from the variable vector."""
         w = np.asarray(w, dtype=float).ravel()
-        N, nx, s = self.N, self.nx, self.stride
-        X = np.array([w[k * s : k * s + nx] for k in range(N + 1)])
-        U = np.array([w[k * s + self.nz : k * s + self.nz + nx] for k in range(N)])
-        return X, U
+        return w[self.index_x], w[self.index_u]
 
     def pack(self, X: np.ndarray, U: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
         """Variable vector for a trajectory (``v`` filled from the commands)."""
-        parts = []
-        V = np.vstack([u_prev, U])
-        for k in range(self.N + 1):
-            parts.append(X[k])
-            parts.append(V[k])
-            if k < self.N:
-                parts.append(U[k])
-        return np.concatenate(parts)
+        w = np.empty(self.stride * self.N + self.nz)
+        w[self.index_x] = X
+        w[self.index_u] = U
+        w[self.index_v[0]] = u_prev
+        w[self.index_v[1:]] = U
+        return w

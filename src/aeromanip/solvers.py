@@ -3,6 +3,10 @@
 * ``ipopt``: the robust reference (interior point, exact Hessian, MUMPS).
 * ``fatrop``: a structure-exploiting interior-point method for optimal control
   (Riccati-based linear algebra over the stage-wise variable/constraint order).
+* ``sqp``: Gauss-Newton SQP with exact condensing and qpOASES, compiled model Functions
+  (``aeromanip.sqp``); ``sqp-rti``: the same, one QP per call (real-time iteration).
+
+``make_backend`` picks one by name.
 """
 
 from __future__ import annotations
@@ -10,7 +14,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import casadi as ca
 import numpy as np
@@ -18,7 +22,7 @@ import numpy as np
 from aeromanip.errors import ConfigError
 from aeromanip.ocp import Transcription
 
-BACKENDS = ("ipopt", "fatrop")
+BACKENDS = ("ipopt", "fatrop", "sqp", "sqp-rti")
 
 
 @dataclass
@@ -33,6 +37,22 @@ class NlpResult:
     status: str
     iterations: int
     solve_time_s: float
+
+
+class Backend(Protocol):
+    """What strategies need from a solver backend."""
+
+    def solve(
+        self,
+        w0: np.ndarray,
+        p: np.ndarray,
+        lbg: np.ndarray,
+        ubg: np.ndarray,
+        lam_g0: np.ndarray | None = None,
+        lam_x0: np.ndarray | None = None,
+    ) -> NlpResult:
+        """Solve from a primal guess (and multipliers)."""
+        ...
 
 
 def _options(name: str, tr: Transcription, user: Mapping[str, Any]) -> dict[str, Any]:
@@ -140,3 +160,21 @@ class NlpBackend:
             iterations=int(stats.get("iter_count", -1)),
             solve_time_s=elapsed,
         )
+
+
+def make_backend(
+    transcription: Transcription, name: str = "ipopt", options: Mapping[str, Any] | None = None
+) -> Backend:
+    """The backend called ``name`` (one of ``BACKENDS``) for ``transcription``.
+
+    ``sqp-rti`` is ``sqp`` with ``{"rti": True}``. Every backend has
+    ``solve(w0, p, lbg, ubg, lam_g0=None, lam_x0=None) -> NlpResult``.
+    """
+    if name in ("sqp", "sqp-rti"):
+        from aeromanip.sqp import SqpBackend
+
+        opts = dict(options or {})
+        if name == "sqp-rti":
+            opts.setdefault("rti", True)
+        return SqpBackend(transcription, opts)
+    return NlpBackend(transcription, name, options)

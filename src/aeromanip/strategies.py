@@ -11,6 +11,14 @@ stage by stage (``mode="stagewise"``, the paper's form: one constraint per predi
 with ``level=None``, e.g. the control rate) are in every level's objective but never
 constrained, which keeps each level's problem well posed when higher levels leave
 redundancy.
+
+``mode="residual"`` keeps instead each higher level's weighted residual vector ``R_k``
+(cost ``c_k = ||R_k||^2``) in a box around its optimum ``R*_k``, with the half-width
+``delta_k`` that keeps ``c_k <= c*_k + tol_k`` at every corner. The rows are linear in the
+residuals, well conditioned even where ``c*_k`` is 0 (where the squared norm's gradient
+vanishes), and Newton-type solvers converge on them in a few steps. It is stricter than
+the paper's form (the residual may not rotate on the sphere ``c_k = c*_k``): a different
+problem, for when speed matters more.
 """
 
 from __future__ import annotations
@@ -19,11 +27,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import casadi as ca
 import numpy as np
 
 from aeromanip.errors import ConfigError
 from aeromanip.ocp import Problem, TaskEntry, Transcription
-from aeromanip.solvers import NlpBackend, NlpResult
+from aeromanip.solvers import Backend, NlpResult, make_backend
 
 
 @dataclass
@@ -58,19 +67,20 @@ class StrategyResult:
     iterations: int
     solve_time_s: float
     levels: list[LevelReport] = field(default_factory=list)
+    level_w: list[np.ndarray] = field(default_factory=list)  # each solved level's solution
 
 
 @dataclass
 class _Stage:
     entries: list[TaskEntry]
     tr: Transcription
-    backend: NlpBackend
+    backend: Backend
     warm: NlpResult | None = None
+    g_fun: ca.Function | None = None  # the constraints, for residual bounds
 
 
 def _level_cost(tr: Transcription, w: np.ndarray, p: np.ndarray, rows: list[int]) -> np.ndarray:
-    C = np.asarray(tr.stage_costs(w, p))
-    return C[rows].sum(axis=0)
+    return tr.costs(w, p)[rows].sum(axis=0)
 
 
 class Weighted:
@@ -82,7 +92,7 @@ class Weighted:
         if not problem.entries:
             raise ConfigError("tasks: the problem has no task")
         tr = Transcription(problem, problem.entries)
-        self.stages = [_Stage(problem.entries, tr, NlpBackend(tr, backend, options))]
+        self.stages = [_Stage(problem.entries, tr, make_backend(tr, backend, options))]
         self.problem = problem
 
     @property
@@ -90,26 +100,29 @@ class Weighted:
         """The transcription whose variable layout results use."""
         return self.stages[-1].tr
 
-    def solve(self, p: np.ndarray, guesses: list[np.ndarray]) -> StrategyResult:
+    def solve(self, p: np.ndarray, guesses: list[np.ndarray | None]) -> StrategyResult:
         """Solve from the primal guess ``guesses[0]`` (duals are reused from the last solve)."""
         st = self.stages[0]
         res = _solve_stage(st, p, guesses[0], st.tr.ubg)
-        C = np.asarray(st.tr.stage_costs(res.w, p)).sum()
+        C = st.tr.costs(res.w, p).sum() if res.success else np.nan
         rep = LevelReport(
             0, float(C), 0.0, res.success, res.status, res.iterations, res.solve_time_s
         )
         return StrategyResult(
-            res.w, st.tr, res.success, res.status, res.iterations, res.solve_time_s, [rep]
+            res.w, st.tr, res.success, res.status, res.iterations, res.solve_time_s, [rep], [res.w]
         )
 
 
-def _solve_stage(st: _Stage, p: np.ndarray, w0: np.ndarray, ubg: np.ndarray) -> NlpResult:
+def _solve_stage(
+    st: _Stage, p: np.ndarray, w0: np.ndarray, ubg: np.ndarray, lbg: np.ndarray | None = None
+) -> NlpResult:
     lam_g = lam_x = None
+    lbg = st.tr.lbg if lbg is None else lbg
     if st.warm is not None and st.warm.success:
         lam_g, lam_x = st.warm.lam_g, st.warm.lam_x
-    res = st.backend.solve(w0, p, st.tr.lbg, ubg, lam_g, lam_x)
+    res = st.backend.solve(w0, p, lbg, ubg, lam_g, lam_x)
     if not res.success and lam_g is not None:  # stale multipliers can mislead: retry cold
-        cold = st.backend.solve(w0, p, st.tr.lbg, ubg)
+        cold = st.backend.solve(w0, p, lbg, ubg)
         cold.solve_time_s += res.solve_time_s
         cold.iterations += res.iterations
         res = cold
@@ -122,7 +135,7 @@ class Hierarchical:
 
     Args:
         problem: tasks with their levels; at least one level.
-        mode: ``"stagewise"`` (default, the paper's) or ``"total"``.
+        mode: ``"stagewise"`` (default, the paper's), ``"total"`` or ``"residual"``.
         rel_tol, abs_tol: the relaxation of each higher level's optimal cost.
         backend, options: NLP solver for every level.
     """
@@ -149,28 +162,63 @@ class Hierarchical:
             own = [e for e in problem.entries if e.level == lvl]
             higher = [[e for e in problem.entries if e.level == h] for h in self.levels[:i]]
             tr = Transcription(problem, own + reg, higher, mode)
-            self.stages.append(_Stage(own, tr, NlpBackend(tr, backend, options)))
+            self.stages.append(_Stage(own, tr, make_backend(tr, backend, options)))
+        self.own_guess = backend.startswith("sqp")
         idx = {e.name: i for i, e in enumerate(problem.entries)}
         self.rows = [[idx[e.name] for e in st.entries] for st in self.stages]
+
+    def _residual_box(
+        self, st: _Stage, j: int, w_j: np.ndarray, p: np.ndarray, c_star: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds ``R*_k -+ delta_k`` on group ``j``'s residual rows of level ``st``, with
+        ``sum_i (|R*_ki| + delta_k)^2 = c*_k + tol_k`` (the cost bound at every corner)."""
+        tr, rows = st.tr, np.asarray(st.tr.hier_rows[j], dtype=int)
+        if st.g_fun is None:
+            st.g_fun = ca.Function("g", [tr.w, tr.p], [tr.g])
+        R = np.asarray(st.g_fun(w_j, p)).ravel()[rows]
+        stage = np.asarray(tr.g_stage, dtype=int)[rows]
+        tol = np.maximum(self.abs_tol, self.rel_tol * np.abs(c_star))
+        lo, hi = np.empty_like(R), np.empty_like(R)
+        for k in np.unique(stage):
+            sel = stage == k
+            a, m = np.abs(R[sel]).sum(), sel.sum()
+            delta = (np.sqrt(a * a + m * tol[k]) - a) / m
+            lo[sel], hi[sel] = R[sel] - delta, R[sel] + delta
+        return lo, hi
 
     @property
     def transcription(self) -> Transcription:
         """The transcription whose variable layout results use (all levels share it)."""
         return self.stages[-1].tr
 
-    def solve(self, p: np.ndarray, guesses: list[np.ndarray]) -> StrategyResult:
-        """Solve level by level; a failed lower level keeps the last successful solution."""
+    def solve(self, p: np.ndarray, guesses: list[np.ndarray | None]) -> StrategyResult:
+        """Solve level by level; a failed lower level keeps the last successful solution.
+
+        Level ``i`` starts from ``guesses[i]`` (e.g. its own previous solution, shifted) if
+        given and the backend is an SQP (which needs no feasible start), else from the
+        higher level's solution (feasible for its constraints: what interior-point
+        methods like). ``guesses[0]`` must be given.
+        """
         reports: list[LevelReport] = []
         optima: list[np.ndarray] = []
         w_best: np.ndarray | None = None
         total_t, total_it, status = 0.0, 0, "ok"
+        level_w: list[np.ndarray] = []
         for i, st in enumerate(self.stages):
-            ubg = st.tr.ubg.copy()
+            lbg, ubg = st.tr.lbg.copy(), st.tr.ubg.copy()
             for j, c_star in enumerate(optima):
                 bound = c_star + np.maximum(self.abs_tol, self.rel_tol * np.abs(c_star))
-                ubg[st.tr.hier_rows[j]] = bound if self.mode == "stagewise" else bound.sum()
-            w0 = guesses[i] if w_best is None else w_best
-            res = _solve_stage(st, p, w0, ubg)
+                rows = st.tr.hier_rows[j]
+                if self.mode == "residual":
+                    lbg[rows], ubg[rows] = self._residual_box(st, j, level_w[j], p, c_star)
+                else:
+                    ubg[rows] = bound if self.mode == "stagewise" else bound.sum()
+            mine = guesses[i] if i < len(guesses) else None
+            if w_best is None:
+                w0 = mine if mine is not None else guesses[0]
+            else:
+                w0 = mine if (mine is not None and self.own_guess) else w_best
+            res = _solve_stage(st, p, w0, ubg, lbg)
             total_t += res.solve_time_s
             total_it += res.iterations
             if not res.success:
@@ -202,8 +250,9 @@ class Hierarchical:
                     res.solve_time_s,
                 )
             )
-            optima.append(own if self.mode == "stagewise" else np.array([own.sum()]))
+            optima.append(own if self.mode != "total" else np.array([own.sum()]))
             w_best = res.w
+            level_w.append(res.w)
         if w_best is None:
             n = self.transcription.w.numel()
             return StrategyResult(
@@ -218,4 +267,5 @@ class Hierarchical:
             total_it,
             total_t,
             reports,
+            level_w,
         )

@@ -1,0 +1,181 @@
+"""Dense convex QPs for the SQP: a dual active-set solver on the rows that may bind.
+
+``min 1/2 d'Hd + g'd  s.t.  lba <= A d <= uba,  lbx <= d <= ubx`` with ``H`` positive
+definite, solved by DAQP (dual active set, through CasADi) or qpOASES. Its cost grows with
+the rows, and in an NMPC most rows (state bounds, clearance at every stage) are far from
+binding: the solver gets first the rows near their bounds, active at the last solve (moved
+one stage on with the horizon: ``shift()``) or always wanted; rows the solution crosses
+are added and it is solved again, so the result is the full QP's. Multipliers follow
+CasADi's sign convention (``> 0`` at an upper bound).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from aeromanip.codegen import Buffered, quiet_stdout
+from aeromanip.errors import ConfigError
+
+SOLVERS: dict[str, dict[str, Any]] = {
+    "daqp": {"daqp": {"primal_tol": 1e-9, "iter_limit": 2000}},
+    "qpoases": {"printLevel": "none", "sparse": False},
+}
+
+
+@dataclass
+class QpResult:
+    """Step ``d``, multipliers of the rows and of the bounds, outcome."""
+
+    d: np.ndarray
+    lam_a: np.ndarray
+    lam_x: np.ndarray
+    ok: bool
+    status: str
+
+
+class DenseQp:
+    """A reusable solver for QPs of fixed size ``n`` variables, ``m`` rows.
+
+    Args:
+        n, m: sizes.
+        solver: ``"daqp"`` or ``"qpoases"``; options: its extra options.
+        screen: rows whose slack exceeds this are left out of the solver's first try.
+        always: rows always given to the solver (e.g. those that bind by design).
+        shift_rows: for each row, the one that predicts it after the horizon moves a step
+            on (``shift()``).
+    """
+
+    def __init__(
+        self,
+        n: int,
+        m: int,
+        solver: str = "daqp",
+        options: dict[str, Any] | None = None,
+        screen: float = 0.1,
+        always: np.ndarray | None = None,
+        shift_rows: np.ndarray | None = None,
+    ) -> None:
+        if solver not in SOLVERS:
+            raise ConfigError(f"solver_options.qpsol: {solver!r} is not one of {list(SOLVERS)}")
+        self.n, self.m, self.solver, self.screen = n, m, solver, screen
+        self.opts = {"error_on_fail": False, "print_time": False, **SOLVERS[solver]}
+        self.opts.update(options or {})
+        self.always = np.zeros(m, dtype=bool) if always is None else always
+        self.shift_rows = np.arange(m) if shift_rows is None else shift_rows
+        self._sizes = sorted({k for k in (8, 16, 24, 32, 48, 64) if k < m} | {m})
+        self._solvers: dict[int, Buffered] = {}
+        self.lam_a = np.zeros(m)  # the last multipliers: their rows go to the solver
+        self._solver(m)
+
+    def reset(self) -> None:
+        """Forget the last multipliers."""
+        self.lam_a[:] = 0.0
+
+    def shift(self) -> None:
+        """Predict the active rows of the next control step (the horizon one step on)."""
+        self.lam_a = self.lam_a[self.shift_rows]
+
+    def solve(
+        self,
+        H: np.ndarray,
+        g: np.ndarray,
+        A: np.ndarray,
+        lba: np.ndarray,
+        uba: np.ndarray,
+        lbx: np.ndarray,
+        ubx: np.ndarray,
+    ) -> QpResult:
+        """Solve (see module docstring); the working set is kept for the next call."""
+        res = self._active_set(H, g, A, lba, uba, lbx, ubx)
+        if res.ok:
+            self.lam_a = res.lam_a
+        return res
+
+    # -- the active-set solver ----------------------------------------------------------------
+    def _solver(self, k: int) -> Buffered:
+        """The solver for ``k`` rows (built on first use)."""
+        if k not in self._solvers:
+            with quiet_stdout():  # qpOASES prints a banner when created
+                qp = ca.conic(
+                    f"aeromanip_qp{k}",
+                    self.solver,
+                    {"h": ca.Sparsity.dense(self.n, self.n), "a": ca.Sparsity.dense(k, self.n)},
+                    self.opts,
+                )
+                b = Buffered(qp)
+            b.views = {qp.name_in(i): b.args[i] for i in range(qp.n_in())}
+            b.views["a"] = b.args[qp.index_in("a")].reshape(k, self.n, order="F")
+            b.out = {qp.name_out(i): b.res[i] for i in range(qp.n_out())}
+            self._solvers[k] = b
+        return self._solvers[k]
+
+    def _active_set(
+        self,
+        H: np.ndarray,
+        g: np.ndarray,
+        A: np.ndarray,
+        lba: np.ndarray,
+        uba: np.ndarray,
+        lbx: np.ndarray,
+        ubx: np.ndarray,
+    ) -> QpResult:
+        near = self.always | (self.lam_a != 0.0) | (np.minimum(-lba, uba) < self.screen)
+        for _ in range(4):
+            rows = np.nonzero(near)[0]
+            k = next(s for s in self._sizes if s >= rows.size)
+            if k == self.m:
+                rows = np.arange(self.m)
+            d, lam_r, lam_x, status = self._solve_rows(H, g, A, lba, uba, lbx, ubx, rows, k)
+            if status:
+                return QpResult(d, np.zeros(self.m), lam_x, False, status)
+            tol = 1e-6 * (1.0 + np.abs(d).max(initial=0.0))
+            Ad = A @ d
+            crossed = ((Ad < lba - tol) | (Ad > uba + tol)) & ~near
+            if not crossed.any():
+                lam = np.zeros(self.m)
+                lam[rows] = lam_r[: rows.size]
+                return QpResult(d, lam, lam_x, True, "")
+            near |= crossed
+        return QpResult(d, np.zeros(self.m), lam_x, False, "screening did not settle")
+
+    def _solve_rows(
+        self,
+        H: np.ndarray,
+        g: np.ndarray,
+        A: np.ndarray,
+        lba: np.ndarray,
+        uba: np.ndarray,
+        lbx: np.ndarray,
+        ubx: np.ndarray,
+        rows: np.ndarray,
+        k: int,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+        """The QP with the rows ``rows`` only (padded with free rows to ``k``)."""
+        q = self._solver(k)
+        v, r = q.views, rows.size
+        v["h"][:] = H.ravel()  # symmetric: either order
+        v["g"][:] = g
+        Am = v["a"]  # (k, n) Fortran-order view of the argument buffer
+        Am[:r] = A[rows]
+        Am[r:] = 0.0
+        v["lba"][:r], v["uba"][:r] = lba[rows], uba[rows]
+        v["lba"][r:], v["uba"][r:] = -np.inf, np.inf
+        v["lbx"][:], v["ubx"][:] = lbx, ubx
+        q.run()
+        d = q.out["x"].copy()
+        # a finite, feasible solution means success: cheaper than asking for the stats
+        tol = 1e-6 * (1.0 + np.abs(d).max(initial=0.0))
+        Ad = Am[:r] @ d
+        ok = bool(
+            np.isfinite(d).all()
+            and (Ad >= lba[rows] - tol).all()
+            and (Ad <= uba[rows] + tol).all()
+            and (d >= lbx - tol).all()
+            and (d <= ubx + tol).all()
+        )
+        status = "" if ok else str(q.buf.stats().get("return_status", "infeasible"))
+        return d, q.out["lam_a"].copy(), q.out["lam_x"].copy(), status

@@ -1,0 +1,345 @@
+"""SQP backend ``sqp`` (and real-time iterations ``sqp-rti``) for a ``Transcription``.
+
+How it is built, and why:
+
+* **Gauss-Newton first.** Every cost is a weighted sum of squared residuals
+  ``f = ||R(w)||^2``, so ``2 J^T J`` (``J = dR/dw``) is a positive semi-definite Hessian
+  that needs no second derivatives; the gradient ``2 J^T R`` is exact, so the fixed points
+  are the NLP's KKT points (the optimum IPOPT finds). Where residuals are large (a
+  reference faster than the velocity bounds allow) Gauss-Newton converges slowly or
+  zig-zags: with ``hessian="auto"`` a solve switches to the exact Hessian of ``f``
+  (eigenvalues reflected if indefinite) at its first shortened step or 7th iteration.
+* **Exact condensing.** The model ``x[k+1] = x[k] + dt u[k]``, ``v[k+1] = u[k]`` is linear,
+  so the states are affine in the commands ``U``: the multiple-shooting NLP is solved in
+  ``U`` alone (``N nx`` variables), the gap rows holding exactly. For N = 10 the dense QP
+  is as cheap as a Riccati-based one, and it is solved by a dual active-set method
+  (``aeromanip.qp``: DAQP on the rows that may bind).
+* **Hierarchy rows** ``c_r = ||R_r||^2 <= b_r`` (stage-wise, ``Hierarchical``) are
+  linearised, and their curvature enters the Hessian as ``2 lam_r J_r^T J_r`` (the
+  Gauss-Newton part of the constraint's Hessian, positive semi-definite since
+  ``lam_r >= 0``), ``lam_r`` from the last QP: the linearisation of a squared norm alone
+  says nothing near its minimum, and with this term the QP sees the ball it must stay in.
+  Each level starts from its own previous solution, shifted (no feasible start needed).
+* **Globalisation:** an l1 merit function with Armijo backtracking.
+* **Stopping:** stationarity ``||grad f + A^T lam||_inf``, constraint violation and
+  complementarity all ``<= tol`` (default ``1e-6``), at each new iterate with the last
+  QP's multipliers.
+* **Real-time iteration** (``rti=True``): one Gauss-Newton QP and a full step per call,
+  from the shifted previous solution; successful if the QP is. Iterated, it converges to
+  the same optimum.
+
+The model Functions are compiled to C once and cached (``aeromanip.codegen``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from aeromanip.codegen import Buffered, compiled_all, limit_blas_threads
+from aeromanip.errors import ConfigError
+from aeromanip.ocp import Transcription
+from aeromanip.qp import DenseQp
+from aeromanip.solvers import NlpResult
+
+DEFAULTS: dict[str, Any] = {
+    "max_iter": 50,  # QPs per solve
+    "tol": 1e-6,  # KKT tolerance (stationarity and constraint violation)
+    "rti": False,  # one QP per solve
+    "codegen": True,  # compile the model Functions to C (cached on disk)
+    # "gauss-newton", "exact" (made positive definite), or "auto": Gauss-Newton,
+    # exact from the first shortened step or the 7th iteration of a solve on
+    "hessian": "auto",
+    "regularization": 1e-9,  # added to the Hessian's diagonal
+    "qpsol": "daqp",  # dense QP solver: "daqp" (dual active set) or "qpoases"
+    "qpsol_options": {},  # extra options of the QP solver
+    "screen": 0.1,  # QP rows farther than this from their bounds are left out at first
+    "blas_threads": 1,  # OpenBLAS threads in this process (None: leave as is)
+}
+
+
+class SqpBackend:
+    """SQP with Gauss-Newton (or exact) Hessians and exact condensing (module docstring).
+
+    Args:
+        transcription: the NLP (its layout is kept for inputs and results).
+        options: keys of ``DEFAULTS``.
+    """
+
+    name = "sqp"
+
+    def __init__(
+        self, transcription: Transcription, options: Mapping[str, Any] | None = None
+    ) -> None:
+        unknown = set(options or {}) - set(DEFAULTS)
+        if unknown:
+            raise ConfigError(
+                f"solver_options.{sorted(unknown)[0]}: unknown sqp option "
+                f"(known: {', '.join(DEFAULTS)})"
+            )
+        self.opts = {**DEFAULTS, **dict(options or {})}
+        self.tr = tr = transcription
+        N, nx, nz, dt = tr.N, tr.nx, tr.nz, tr.problem.dt
+        self.nU = nU = N * nx
+        U = ca.SX.sym("U", nU)
+        p = ca.SX.sym("p", tr.p.numel())
+        x, v, parts = p[:nx], p[nx : 2 * nx], []
+        for k in range(N + 1):
+            parts += [x, v]
+            if k < N:
+                uk = U[k * nx : (k + 1) * nx]
+                parts.append(uk)
+                x, v = x + dt * uk, uk
+        wU = ca.vertcat(*parts)
+        hier = [r for _, r in tr.hier_residuals]
+        ms = ca.Function("ms", [tr.w, tr.p], [tr.residuals, tr.g, ca.vertcat(*hier)])
+        R, g, Rh = ms(wU, p)
+        gap = set(tr.gap_rows)
+        self.keep = np.array([i for i in range(tr.g.numel()) if i not in gap], dtype=int)
+        # state bounds become linear rows of U (stage 0 is the measured state: not bounded)
+        lbw, ubw = tr.lbw, tr.ubw
+        sidx = [
+            k * tr.stride + i
+            for k in range(1, N + 1)
+            for i in range(nx)
+            if np.isfinite(lbw[k * tr.stride + i]) or np.isfinite(ubw[k * tr.stride + i])
+        ]
+        self.state_idx = np.array(sidx, dtype=int)
+        self.u_idx = np.array(
+            [k * tr.stride + nz + i for k in range(N) for i in range(nx)], dtype=int
+        )
+        gc = ca.vertcat(g[self.keep.tolist()], wU[sidx])
+        self.nk = len(self.keep)
+        self.lb_state, self.ub_state = lbw[self.state_idx], ubw[self.state_idx]
+        row_of = {r: i for i, r in enumerate(self.keep)}
+        self.hier_elem_row = np.concatenate(
+            [np.full(r.numel(), row_of[row], dtype=int) for row, r in tr.hier_residuals]
+            or [np.zeros(0, dtype=int)]
+        )
+        tag = f"{len(tr.hier_residuals)}h{N}x{nx}"
+        J, A, Jh = (ca.densify(ca.jacobian(e, U)) for e in (R, gc, Rh))
+        hess = self.opts["hessian"]
+        if hess not in ("auto", "exact", "gauss-newton"):
+            raise ConfigError(
+                f"solver_options.hessian: {hess!r} is not 'auto', 'exact' or 'gauss-newton'"
+            )
+        with_exact = hess != "gauss-newton" and not self.opts["rti"]
+        data = ca.Function(f"aeromanip_sqp_data_{tag}", [U, p], [R, J, gc, A, Jh])
+        merit = ca.Function(f"aeromanip_sqp_merit_{tag}", [U, p], [ca.sumsqr(R), gc])
+        fs = [data, merit, tr.stage_costs]
+        if with_exact:
+            Hf = ca.densify(ca.hessian(ca.sumsqr(R), U)[0])
+            fs.append(ca.Function(f"aeromanip_sqp_hess_{tag}", [U, p], [Hf]))
+        fs = compiled_all(fs, self.opts["codegen"])  # built in parallel, once, cached
+        self.data, self.merit = Buffered(fs[0]), Buffered(fs[1])
+        tr.use_stage_costs(fs[2])
+        self.hess = Buffered(fs[3]) if with_exact else None
+        self.nr, self.nc, self.nh = R.numel(), gc.numel(), Rh.numel()
+        self.lbU = np.tile(tr.problem.bounds.u_lower, N)
+        self.ubU = np.tile(tr.problem.bounds.u_upper, N)
+        always = np.zeros(self.nc, dtype=bool)
+        always[[row_of[r] for rows in tr.hier_rows for r in rows]] = True  # bind by design
+        # which row predicts each one when the horizon moves a step on
+        stage = np.concatenate(
+            [np.asarray(tr.g_stage, dtype=int)[self.keep], self.state_idx // tr.stride]
+        )
+        kind = np.concatenate([np.zeros(self.nk, dtype=int), np.ones(len(sidx), dtype=int)])
+        pos: dict[tuple[int, int, int], int] = {}
+        count: dict[tuple[int, int], int] = {}
+        keys = []
+        for r, (kd, st) in enumerate(zip(kind, stage, strict=True)):
+            j = count.get((kd, st), 0)
+            count[(kd, st)] = j + 1
+            keys.append((kd, st, j))
+            pos[(kd, st, j)] = r
+        shift_rows = np.array(
+            [r if st < 0 else pos.get((kd, st + 1, j), r) for r, (kd, st, j) in enumerate(keys)]
+        )
+        self.shift_vars = np.arange(nU) + nx
+        self.shift_vars[self.shift_vars >= nU] -= nx  # the last command predicts itself
+        self.qp = DenseQp(
+            nU,
+            self.nc,
+            self.opts["qpsol"],
+            self.opts["qpsol_options"],
+            self.opts["screen"],
+            always,
+            shift_rows,
+        )
+        if self.opts["blas_threads"] is not None:
+            limit_blas_threads(int(self.opts["blas_threads"]))
+
+    # -- layout conversions --------------------------------------------------------------
+    def _to_w(self, Uv: np.ndarray, p: np.ndarray) -> np.ndarray:
+        tr, nx, N = self.tr, self.tr.nx, self.tr.N
+        Um = Uv.reshape(N, nx)
+        X = np.vstack([p[:nx], p[:nx] + tr.problem.dt * np.cumsum(Um, axis=0)])
+        return tr.pack(X, Um, p[nx : 2 * nx])
+
+    def _duals_out(self, lam_c: np.ndarray, lam_u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lam_g = np.zeros(self.tr.g.numel())
+        lam_g[self.keep] = lam_c[: self.nk]
+        lam_x = np.zeros(self.tr.w.numel())
+        lam_x[self.state_idx] = lam_c[self.nk :]
+        lam_x[self.u_idx] = lam_u
+        return lam_g, lam_x
+
+    def _duals_in(
+        self, lam_g: np.ndarray | None, lam_x: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        lam_c, lam_u = np.zeros(self.nc), np.zeros(self.nU)
+        if lam_g is not None and lam_x is not None:
+            lam_c[: self.nk] = np.asarray(lam_g)[self.keep]
+            lam_c[self.nk :] = np.asarray(lam_x)[self.state_idx]
+            lam_u[:] = np.asarray(lam_x)[self.u_idx]
+        return lam_c, lam_u
+
+    # -- the solve ----------------------------------------------------------------------
+    def solve(
+        self,
+        w0: np.ndarray,
+        p: np.ndarray,
+        lbg: np.ndarray,
+        ubg: np.ndarray,
+        lam_g0: np.ndarray | None = None,
+        lam_x0: np.ndarray | None = None,
+    ) -> NlpResult:
+        """Solve from the primal guess ``w0`` (its commands are used) and multipliers."""
+        t0 = time.perf_counter()
+        o = self.opts
+        Uv = np.asarray(w0, dtype=float)[self.u_idx].copy()
+        Uv = np.clip(Uv, self.lbU, self.ubU)
+        lbc = np.concatenate([lbg[self.keep], self.lb_state])
+        ubc = np.concatenate([ubg[self.keep], self.ub_state])
+        lam_c, lam_u = self._duals_in(lam_g0, lam_x0)
+        # each solve is a new control step: its multipliers are the last ones moved a stage on
+        lam_c, lam_u = lam_c[self.qp.shift_rows], lam_u[self.shift_vars]
+        self.qp.shift()
+        p = np.asarray(p, dtype=float)
+        reg = o["regularization"]
+        mu, it, status, ok, f = 0.0, 0, "", False, np.nan
+        exact = o["hessian"] == "exact"
+        max_iter = 1 if o["rti"] else int(o["max_iter"])
+        while True:
+            R, J, gc, A, Jh = self.data(Uv, p)
+            J = J.reshape(self.nr, self.nU, order="F")
+            A = A.reshape(self.nc, self.nU, order="F")
+            f = float(R @ R)
+            grad = 2.0 * (J.T @ R)
+            if not np.isfinite(f):  # NaN in derivatives shows in the QP's solution
+                status = "Invalid_Number_Detected"
+                break
+            viol = 0.0 if o["rti"] else _violation(gc, lbc, ubc)
+            if not o["rti"] and (it > 0 or lam_g0 is not None) and viol <= o["tol"]:
+                stat = np.abs(grad + A.T @ lam_c + lam_u).max(initial=0.0)
+                if (
+                    stat <= o["tol"]
+                    and _complementarity(gc, lbc, ubc, lam_c) <= o["tol"]
+                    and _complementarity(Uv, self.lbU, self.ubU, lam_u) <= o["tol"]
+                ):
+                    ok, status = True, "Solve_Succeeded"
+                    break
+            if it >= max_iter:
+                status = "Maximum_Iterations_Exceeded"
+                break
+            Hf = self.hess(Uv, p)[0] if (exact and self.hess is not None) else None
+            H = self._hessian(J, Jh, Hf, lam_c)
+            H.flat[:: self.nU + 1] += reg
+            qp = self.qp.solve(H, grad, A, lbc - gc, ubc - gc, self.lbU - Uv, self.ubU - Uv)
+            it += 1
+            if not qp.ok:
+                status = f"QP failed: {qp.status}"
+                break
+            d, lam_c, lam_u = qp.d, qp.lam_a, qp.lam_x
+            if o["rti"]:  # f stays the cost at the linearisation point
+                Uv = Uv + d
+                ok, status = True, "RTI step"
+                break
+            mu = max(mu, 1.1 * np.abs(lam_c).max(initial=0.0) + 1e-8)
+            alpha = self._line_search(Uv, d, p, f, grad, _l1(gc, lbc, ubc), mu, lbc, ubc)
+            Uv = Uv + alpha * d
+            # Gauss-Newton converges slowly where residuals are large: then go exact
+            exact = o["hessian"] == "exact" or (
+                o["hessian"] == "auto" and (exact or alpha < 1.0 or it >= 6)
+            )
+        lam_g, lam_x = self._duals_out(lam_c, lam_u)
+        w = self._to_w(Uv, p)
+        ok = ok and bool(np.all(np.isfinite(w)))
+        return NlpResult(w, lam_g, lam_x, f, ok, status, it, time.perf_counter() - t0)
+
+    def _hessian(
+        self, J: np.ndarray, Jh: np.ndarray, Hf: np.ndarray | None, lam_c: np.ndarray
+    ) -> np.ndarray:
+        """The objective's Gauss-Newton Hessian, or its exact one ``Hf`` (if given) with its
+        eigenvalues reflected (``|lambda|``, floored) if indefinite; plus the Gauss-Newton
+        curvature of the hierarchy rows."""
+        Hh = None
+        if self.nh:
+            lam_h = np.maximum(lam_c[self.hier_elem_row], 0.0)
+            Jw = Jh.reshape(self.nh, self.nU, order="F") * np.sqrt(lam_h)[:, None]
+            Hh = 2.0 * (Jw.T @ Jw)
+        if Hf is not None:
+            H = Hf.reshape(self.nU, self.nU, order="F").copy()
+            if Hh is not None:
+                H += Hh
+            try:
+                np.linalg.cholesky(H)
+            except np.linalg.LinAlgError:
+                lam, V = np.linalg.eigh(H)
+                lam = np.maximum(np.abs(lam), 1e-6 * max(np.abs(lam).max(), 1e-3))
+                H = (V * lam) @ V.T
+            return H
+        H = J.T @ J
+        H *= 2.0
+        if Hh is not None:
+            H += Hh
+        return H
+
+    def _line_search(
+        self,
+        Uv: np.ndarray,
+        d: np.ndarray,
+        p: np.ndarray,
+        f: float,
+        grad: np.ndarray,
+        viol: float,
+        mu: float,
+        lbc: np.ndarray,
+        ubc: np.ndarray,
+    ) -> float:
+        """Armijo backtracking on the l1 merit ``f + mu * sum(violations)``: the step length."""
+        phi0 = f + mu * viol
+        slope = float(grad @ d) - mu * viol
+        alpha = 1.0
+        while True:
+            f1, gc1 = self.merit(Uv + alpha * d, p)
+            phi = float(f1[0]) + mu * _l1(gc1, lbc, ubc)
+            if phi <= phi0 + 1e-4 * alpha * min(slope, 0.0) or alpha < 1e-3:
+                return alpha
+            alpha *= 0.5
+
+
+def _violation(g: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> float:
+    """Largest bound violation of ``g`` (0 inside)."""
+    if g.size == 0:
+        return 0.0
+    return float(max(np.max(lb - g), np.max(g - ub), 0.0))
+
+
+def _l1(g: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> float:
+    """Sum of the bound violations of ``g``."""
+    return float(np.sum(np.maximum(lb - g, 0.0)) + np.sum(np.maximum(g - ub, 0.0)))
+
+
+def _complementarity(g: np.ndarray, lb: np.ndarray, ub: np.ndarray, lam: np.ndarray) -> float:
+    """Largest ``|lam| * distance to its bound`` (casadi sign: ``lam > 0`` at the upper one)."""
+    if g.size == 0:
+        return 0.0
+    with np.errstate(invalid="ignore"):
+        c = np.where(lam > 0, lam * (ub - g), np.where(lam < 0, lam * (lb - g), 0.0))
+    c = np.abs(c).max()
+    return float(c) if np.isfinite(c) else np.inf

@@ -1,0 +1,215 @@
+"""The ``sqp`` backend against independent truth (IPOPT on the same NLP), RTI, codegen."""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from aeromanip.codegen import compiled
+from aeromanip.constraints import Bounds, Clearance
+from aeromanip.controller import Controller
+from aeromanip.errors import ConfigError
+from aeromanip.ocp import Problem
+from aeromanip.references import Constant
+from aeromanip.robot.loader import load_robot
+from aeromanip.strategies import Hierarchical, Weighted
+from aeromanip.tasks import CogAlignment, ControlRate, EndEffectorTracking
+
+X8 = load_robot("x8-3dof")
+X0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
+FAST = {"codegen": False}  # in-process Functions: no compile time in most tests
+
+
+def make_problem(levels=(0, 1), target=(0.5, 0.3, 0.6), box=None, horizon=10):
+    pb = Problem(X8, horizon, 0.5, Bounds.from_robot(X8, platform_box=box))
+    pb.add_task(EndEffectorTracking(Constant(list(target))), weight=10.0, level=levels[0])
+    pb.add_task(CogAlignment(), weight=1.0, level=levels[1])
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    pb.add_constraint(Clearance(0.1))
+    return pb
+
+
+def check_feasible(pb, cmd, tol=1e-6):
+    b = pb.bounds
+    X, U = cmd.plan_x, cmd.plan_u
+    assert np.all(X[1:] >= b.x_lower - tol) and np.all(X[1:] <= b.x_upper + tol)
+    assert np.all(b.u_lower - tol <= U) and np.all(b.u_upper + tol >= U)
+    clear = pb.kin.clearance()
+    assert min(float(np.min(np.asarray(clear(x)))) for x in X[1:]) >= 0.1 - tol
+    np.testing.assert_allclose(X[1:], X[:-1] + pb.dt * U, atol=1e-10)
+
+
+def two_steps(pb, strategy, backend, options=None, **kw):
+    """Two closed-loop steps (the second warm-started), the last command returned."""
+    ctrl = Controller(pb, strategy, backend, options, **kw)
+    first = ctrl.step(X0, 0.0)
+    return ctrl.step(X0 + pb.dt * first.u, pb.dt)
+
+
+def test_weighted_reaches_the_ipopt_optimum():
+    pb = make_problem(levels=(0, 0))
+    ref = two_steps(pb, "weighted", "ipopt")
+    cmd = two_steps(pb, "weighted", "sqp", FAST)
+    assert cmd.status == ref.status == "ok"
+    np.testing.assert_allclose(cmd.plan_u, ref.plan_u, atol=1e-4)
+    for name, c in ref.task_costs.items():
+        assert cmd.task_costs[name] == pytest.approx(c, rel=1e-4, abs=1e-8)
+    check_feasible(pb, cmd)
+
+
+def test_active_clearance_each_solution_is_the_others_optimum():
+    """A target only reachable by folding the arm up: non-convex, with several local optima
+    (from a cold start the two methods may find different ones); each backend, started at
+    the other's solution, stays there: both are KKT points of the same NLP."""
+    pb = make_problem(levels=(0, 0), target=(0.2, 0.0, 0.95), box={"z": (1.0, 1.0 + 1e-9)})
+    tr = Weighted(pb, "ipopt").transcription
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    cold = tr.pack(np.repeat(X0[None], 11, 0), np.zeros((10, 7)), np.zeros(7))
+    for first, second in (("ipopt", "sqp"), ("sqp", "ipopt")):
+        a = Weighted(pb, first, FAST if first == "sqp" else None).solve(p, [cold])
+        b = Weighted(pb, second, FAST if second == "sqp" else None).solve(p, [a.w])
+        assert a.success and b.success
+        np.testing.assert_allclose(tr.unpack(b.w)[1], tr.unpack(a.w)[1], atol=1e-5)
+    ctrl = Controller(pb, "weighted", "sqp", FAST)
+    x = X0.copy()
+    for k in range(12):
+        cmd = ctrl.step(x, k * pb.dt)
+        assert cmd.status == "ok"
+        check_feasible(pb, cmd)
+        x = x + pb.dt * cmd.u
+
+
+@pytest.mark.parametrize("mode", ["stagewise", "total", "residual"])
+def test_hierarchy_reaches_the_ipopt_optimum(mode):
+    pb = make_problem()
+    ref = two_steps(pb, "hierarchical", "ipopt", hierarchy={"mode": mode})
+    cmd = two_steps(pb, "hierarchical", "sqp", FAST, hierarchy={"mode": mode})
+    assert cmd.status == ref.status == "ok"
+    assert [lv.success for lv in cmd.levels] == [True, True]
+    np.testing.assert_allclose(cmd.plan_u, ref.plan_u, atol=1e-4)
+    assert cmd.levels[0].cost == pytest.approx(ref.levels[0].cost, rel=1e-4, abs=1e-9)
+    assert cmd.levels[1].cost == pytest.approx(ref.levels[1].cost, rel=1e-4, abs=1e-9)
+    # the primary task keeps its optimum within the hierarchy's tolerance
+    n_rows = 1 if mode == "total" else pb.horizon + 1
+    assert cmd.task_costs["tracking"] <= cmd.levels[0].cost * (1 + 1e-3) + 1e-6 * n_rows + 1e-9
+    check_feasible(pb, cmd)
+
+
+def test_rti_iterated_converges_to_the_ipopt_solution():
+    pb = make_problem(levels=(0, 0))
+    ipopt, rti = Weighted(pb, "ipopt"), Weighted(pb, "sqp-rti", FAST)
+    tr = ipopt.transcription
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    w_ref = ipopt.solve(p, [tr.pack(np.repeat(X0[None], 11, 0), np.zeros((10, 7)), np.zeros(7))]).w
+    w = tr.pack(np.repeat(X0[None], 11, 0), np.zeros((10, 7)), np.zeros(7))
+    steps = []
+    for _ in range(40):
+        res = rti.solve(p, [w])
+        assert res.success and res.iterations == 1
+        steps.append(np.abs(res.w - w).max())
+        w = res.w
+    assert steps[-1] < 1e-7
+    np.testing.assert_allclose(tr.unpack(w)[1], tr.unpack(w_ref)[1], atol=1e-5)
+
+
+def test_rti_closed_loop_tracks_like_the_converged_controller():
+    pb = make_problem(levels=(0, 0), box={"z": (0.5, 2.0)})
+    finals = {}
+    for backend in ("sqp", "sqp-rti"):
+        ctrl, x = Controller(pb, "weighted", backend, FAST), X0.copy()
+        for k in range(25):
+            cmd = ctrl.step(x, k * pb.dt)
+            assert cmd.status == "ok"
+            check_feasible(pb, cmd)
+            x = x + pb.dt * cmd.u
+        finals[backend] = np.asarray(pb.kin.ee_position(x)).ravel()
+    np.testing.assert_allclose(finals["sqp-rti"], finals["sqp"], atol=1e-3)
+
+
+def test_failures_fall_back_then_stop():
+    pb = make_problem(levels=(0, 0))
+    ctrl = Controller(pb, "weighted", "sqp", {**FAST, "max_iter": 1})
+    cmd = ctrl.step(X0, 0.0)
+    assert cmd.status == "stopped" and np.all(cmd.u == 0.0)
+    assert "Maximum_Iterations" in cmd.message
+    good = Controller(pb, "weighted", "sqp", FAST)
+    first = good.step(X0, 0.0)
+    good.time_budget_s = 1e-9
+    second = good.step(X0 + pb.dt * first.u, pb.dt)
+    assert second.status == "fallback"
+    np.testing.assert_allclose(second.u, first.plan_u[1])
+
+
+def test_infeasible_start_is_a_status_not_a_crash():
+    x = X0.copy()
+    x[5] = 3.0  # far beyond the shoulder limit: no command brings it back in one step
+    cmd = Controller(make_problem(levels=(0, 0)), "weighted", "sqp", FAST).step(x, 0.0)
+    assert cmd.status == "stopped" and cmd.message
+
+
+def test_bad_options_are_config_errors():
+    pb = make_problem(levels=(0, 0))
+    with pytest.raises(ConfigError, match="unknown sqp option"):
+        Controller(pb, "weighted", "sqp", {"max_iters": 3})
+    with pytest.raises(ConfigError, match="qpsol"):
+        Controller(pb, "weighted", "sqp", {**FAST, "qpsol": "nope"})
+    with pytest.raises(ConfigError, match="hessian"):
+        Controller(pb, "weighted", "sqp", {**FAST, "hessian": "bfgs"})
+
+
+def test_compiled_functions_are_cached_and_agree(tmp_path, monkeypatch):
+    monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
+    x = ca.SX.sym("x", 3)
+    f = ca.Function("aeromanip_test_f", [x], [ca.sin(x) * ca.sumsqr(x), ca.jacobian(x**3, x)])
+    g = compiled(f)
+    libs = list(tmp_path.glob("aeromanip_test_f-*.so"))
+    assert len(libs) == 1
+    v = np.array([0.3, -1.2, 2.0])
+    for a, b in zip(f(v), g(v), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-14, atol=1e-14)
+    mtime = libs[0].stat().st_mtime_ns
+    compiled(f)  # the same Function again: loaded, not rebuilt
+    assert libs[0].stat().st_mtime_ns == mtime
+    assert len(list(tmp_path.glob("*.so"))) == 1
+
+
+def test_compiled_sqp_matches_in_process(tmp_path, monkeypatch):
+    monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
+    pb = make_problem(levels=(0, 0), horizon=3)
+    a = Controller(pb, "weighted", "sqp").step(X0, 0.0)
+    b = Controller(pb, "weighted", "sqp", FAST).step(X0, 0.0)
+    assert list(tmp_path.glob("*.so"))
+    np.testing.assert_allclose(a.plan_u, b.plan_u, atol=1e-9)
+
+
+def test_hierarchical_sqp_strategy_keeps_level_order():
+    pb = make_problem()
+    h = Hierarchical(pb, backend="sqp", options=FAST)
+    assert [len(st.entries) for st in h.stages] == [1, 1]
+
+
+@pytest.mark.parametrize("cc", ["false", "no-such-compiler-xyz"])
+def test_without_a_working_compiler_functions_run_in_process(tmp_path, monkeypatch, cc):
+    monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
+    monkeypatch.setenv("CC", cc)
+    x = ca.SX.sym("x", 2)
+    f = ca.Function("aeromanip_test_cc", [x], [ca.sumsqr(x)])
+    assert compiled(f) is f
+    assert not list(tmp_path.iterdir())  # no library, no leftover build directory
+
+
+def test_residual_mode_keeps_the_primary_optimum_and_improves_the_secondary():
+    pb = make_problem()
+    only = Problem(X8, 10, 0.5)
+    only.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    only.add_task(ControlRate(), weight=0.1, level=None)
+    only.add_constraint(Clearance(0.1))
+    alone = Controller(only, "weighted", "ipopt").step(X0, 0.0)
+    for backend, opts in (("ipopt", None), ("sqp", FAST)):
+        cmd = Controller(pb, "hierarchical", backend, opts, hierarchy={"mode": "residual"})
+        cmd = cmd.step(X0, 0.0)
+        assert cmd.status == "ok"
+        primary = alone.task_costs["tracking"]
+        assert cmd.levels[0].cost == pytest.approx(primary, rel=1e-4, abs=1e-9)
+        assert cmd.task_costs["tracking"] <= primary * (1 + 1e-3) + 1e-6 * (pb.horizon + 1)
+        assert cmd.levels[1].gain > 0.0
+        check_feasible(pb, cmd)
