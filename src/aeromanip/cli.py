@@ -102,6 +102,20 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             results[f"kinematics/{robot}"] = r
             print(format_kinematics(r))
             print()
+    if args.what in ("controller", "all"):
+        from aeromanip.bench.controller import VARIANTS, bench_controller, format_controller
+
+        names = args.variant or list(VARIANTS)
+        unknown = [n for n in names if n not in VARIANTS]
+        if unknown:
+            raise ConfigError(f"--variant {unknown[0]}: unknown (have: {', '.join(VARIANTS)})")
+        if args.duration <= 0:
+            raise ConfigError(f"--duration: must be > 0 s, got {args.duration}")
+        print(f"controller step, flight problem, {args.duration:g} s closed loop per variant:")
+        r = bench_controller(names, duration=args.duration)
+        results["controller"] = r
+        print(format_controller(r))
+        print()
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2))
         print(f"wrote {args.json}")
@@ -132,7 +146,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("list", help="built-in robots and scenarios, one line each")
     p.set_defaults(func=_cmd_list)
     p = sub.add_parser("bench", help="measure evaluation and controller step times")
-    p.add_argument("what", nargs="?", default="all", choices=["all", "kinematics"])
+    p.add_argument("what", nargs="?", default="all", choices=["all", "kinematics", "controller"])
+    p.add_argument(
+        "--variant",
+        action="append",
+        metavar="NAME",
+        help="controller variant to run (repeatable; default: all)",
+    )
+    p.add_argument(
+        "--duration", type=float, default=60.0, help="closed loop per variant [s] (default 60)"
+    )
     p.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     p.set_defaults(func=_cmd_bench)
     return parser

@@ -1,0 +1,261 @@
+"""How long a controller step takes, and what it buys: the ``flight`` problem closed loop.
+
+Every variant runs the same closed loop (``flight``: x8-3dof, N = 10, dt = 0.5 s, the
+ideal kinematic inner loop ``x <- x + dt u``) in this one process, one after the other.
+For each: the per-step wall time of ``Controller.step`` (Python included) after a few
+warm-up steps (then the controller is reset), the solver iterations, failures, the
+end-effector tracking RMSE, the closed-loop cost (every task's weighted stage cost along
+the executed trajectory, so that all variants are scored alike) and the largest bound
+violation. Variants whose answer should equal a reference report the largest difference
+of their applied commands from it.
+
+* ``baseline``: the formulation most users write first: CasADi ``nlpsol`` + IPOPT with
+  default options, solved from scratch (no warm start) at every step.
+* ``weighted``: the weighted strategy; ``hierarchical``: 2 levels (tracking, then CoG),
+  stage-wise cost bounds (the paper's form); ``residual``: the same hierarchy with
+  ``mode = "residual"`` (residual boxes: a stricter problem, see ``strategies``);
+  ``constrained``: weighted, with a reference 12x faster so that velocity bounds bind;
+  ``rti``: weighted, one SQP iteration per step. Each with the ``sqp`` backend and, as
+  the reference answer, with IPOPT warm-started and converged tightly (``-ipopt``,
+  ``tol = 1e-10``: at its default tolerance IPOPT's own answer moves by ~3e-4 rad/s).
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from aeromanip.codegen import limit_blas_threads
+from aeromanip.controller import Controller
+from aeromanip.ocp import Problem, Transcription
+from aeromanip.scenario import Scenario, load_scenarios
+
+FAST = 12.0  # reference speed-up of the constrained variant
+FLIGHT_FREQ = (0.0125, 0.0091, 0.0067)  # Hz, flight.toml's Lissajous frequencies
+
+REF_OPTIONS = {"ipopt.tol": 1e-10}  # the reference answers: IPOPT converged tightly
+
+# name: (scenario kind, strategy ("residual": hierarchical, mode "residual"), backend,
+#        solver options, the variant it should equal)
+VARIANTS: dict[str, tuple[str, str, str, dict | None, str | None]] = {
+    "baseline": ("flight", "weighted", "plain-ipopt", None, None),
+    "weighted-ipopt": ("flight", "weighted", "ipopt", REF_OPTIONS, None),
+    "weighted": ("flight", "weighted", "sqp", None, "weighted-ipopt"),
+    "rti": ("flight", "weighted", "sqp-rti", None, "weighted"),
+    "hierarchical-ipopt": ("flight", "hierarchical", "ipopt", REF_OPTIONS, None),
+    "hierarchical": ("flight", "hierarchical", "sqp", None, "hierarchical-ipopt"),
+    "residual-ipopt": ("flight", "residual", "ipopt", REF_OPTIONS, None),
+    "residual": ("flight", "residual", "sqp", None, "residual-ipopt"),
+    "constrained-ipopt": ("fast", "weighted", "ipopt", REF_OPTIONS, None),
+    "constrained": ("fast", "weighted", "sqp", None, "constrained-ipopt"),
+}
+
+
+class PlainIpopt:
+    """The baseline: the same NLP through ``nlpsol`` + IPOPT, default options, cold start.
+
+    It offers the one method the loop needs, ``step(x, t) -> (u, iterations, ok)``.
+    """
+
+    def __init__(self, problem: Problem) -> None:
+        self.problem = problem
+        self.tr = Transcription(problem, problem.entries)
+        nlp = {"x": self.tr.w, "p": self.tr.p, "f": self.tr.f, "g": self.tr.g}
+        opts = {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes"}
+        self.solver = ca.nlpsol("baseline", "ipopt", nlp, opts)
+        self.u_prev = np.zeros(problem.kin.nx)
+
+    def reset(self) -> None:
+        """Forget the applied command."""
+        self.u_prev = np.zeros(self.problem.kin.nx)
+
+    def step(self, x: np.ndarray, t: float) -> tuple[np.ndarray, int, bool]:
+        """Solve from the constant-state guess; return the first command."""
+        tr, N = self.tr, self.problem.horizon
+        p = tr.parameters(x, self.u_prev, self.problem.stage_params(t))
+        lbw, ubw = tr.variable_bounds(x, self.u_prev)
+        w0 = tr.pack(np.repeat(x[None], N + 1, 0), np.zeros((N, x.size)), self.u_prev)
+        out = self.solver(x0=w0, p=p, lbx=lbw, ubx=ubw, lbg=tr.lbg, ubg=tr.ubg)
+        st = self.solver.stats()
+        u = tr.unpack(np.asarray(out["x"]).ravel())[1][0]
+        if not st["success"]:
+            u = np.zeros_like(u)
+        self.u_prev = u
+        return u, int(st["iter_count"]), bool(st["success"])
+
+
+def _scenario(kind: str, duration: float) -> Scenario:
+    sets = [f"duration={duration}"]
+    if kind == "fast":
+        sets.append(f"reference.frequency={[FAST * f for f in FLIGHT_FREQ]}")
+    return load_scenarios("flight", sets)[""]
+
+
+def _stepper(
+    sc: Scenario, strategy: str, backend: str, options: dict | None
+) -> tuple[Any, Callable]:
+    if backend == "plain-ipopt":
+        ctrl = PlainIpopt(sc.problem)
+        return ctrl, ctrl.step
+
+    hierarchy = None
+    if strategy in ("hierarchical", "residual"):
+        hierarchy = dict(sc.hierarchy, mode="residual" if strategy == "residual" else "stagewise")
+        strategy = "hierarchical"
+    ctrl = Controller(sc.problem, strategy, backend, options, hierarchy=hierarchy)
+
+    def step(x: np.ndarray, t: float) -> tuple[np.ndarray, int, bool]:
+        cmd = ctrl.step(x, t)
+        return cmd.u, cmd.iterations, cmd.status == "ok"
+
+    return ctrl, step
+
+
+def run_variant(
+    kind: str,
+    strategy: str,
+    backend: str,
+    options: dict | None = None,
+    duration: float = 60.0,
+    warmup: int = 3,
+) -> dict[str, Any]:
+    """Closed loop of one variant: timing [ms], iterations, tracking and cost."""
+    sc = _scenario(kind, duration)
+    pb, dt = sc.problem, sc.problem.dt
+    ctrl, step = _stepper(sc, strategy, backend, options)
+    x = sc.x0.copy()
+    for k in range(warmup):  # compile, load, fill caches; then start afresh
+        step(x, k * dt)
+    ctrl.reset()
+    tr = Transcription(pb, pb.entries)
+    b = pb.bounds
+    xs, us, ts, its, fails = [], [], [], [], 0
+    for k in range(sc.steps):
+        t0 = time.perf_counter()
+        u, it, ok = step(x, k * dt)
+        ts.append(time.perf_counter() - t0)
+        xs.append(x)
+        us.append(u)
+        its.append(it)
+        fails += not ok
+        x = x + dt * u
+    X, U = np.array(xs), np.array(us)
+    times = dt * np.arange(len(X))
+    ee = np.array([np.asarray(pb.kin.ee_position(xk)).ravel() for xk in X])
+    ref = np.asarray(sc.reference.sample(times))
+    err = np.linalg.norm(ee - ref, axis=1)
+    P = np.vstack([pb.stage_params(t)[0] for t in times])
+    V = np.vstack([np.zeros(pb.kin.nx), U[:-1]])
+    cost = sum(
+        float(np.asarray(tr.f_stage(np.concatenate([X[k], V[k]]), U[k], P[k])[3]).sum())
+        for k in range(len(X))
+    )
+    clear = pb.kin.clearance()
+    d_min = sc.clearance.d_min if sc.clearance is not None else -np.inf
+    viol = max(
+        float(np.max(b.x_lower - X)),
+        float(np.max(X - b.x_upper)),
+        float(np.max(b.u_lower - U)),
+        float(np.max(U - b.u_upper)),
+        max(float(d_min - np.min(np.asarray(clear(xk)))) for xk in X),
+        0.0,
+    )
+    active = np.any(np.isclose(U, b.u_lower, atol=1e-5) | np.isclose(U, b.u_upper, atol=1e-5), 1)
+    ms = 1e3 * np.array(ts)
+    return {
+        "scenario": sc.name + (f" (reference x{FAST:g})" if kind == "fast" else ""),
+        "strategy": strategy,
+        "backend": backend,
+        "options": options or {},
+        "steps": len(ms),
+        "median_ms": float(np.median(ms)),
+        "p95_ms": float(np.percentile(ms, 95)),
+        "max_ms": float(ms.max()),
+        "iterations_mean": float(np.mean(its)),
+        "iterations_max": int(np.max(its)),
+        "failures": int(fails),
+        "ee_rmse_m": float(np.sqrt(np.mean(err**2))),
+        "closed_loop_cost": cost,
+        "max_bound_violation": viol,
+        "velocity_bound_active_share": float(np.mean(active)),
+        "commands": U.tolist(),
+    }
+
+
+def machine() -> dict[str, Any]:
+    """What the numbers were measured on."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            names = [ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")]
+        cpu = names[0] if names else cpu
+    except OSError:
+        pass
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (np.nan,) * 3
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "casadi": ca.__version__,
+        "numpy": np.__version__,
+        "load_average_at_start": [round(v, 2) for v in load],
+    }
+
+
+def bench_controller(
+    variants: Sequence[str] | None = None, duration: float = 60.0, warmup: int = 3
+) -> dict[str, Any]:
+    """Run the variants (default: all of ``VARIANTS``) in this process; see module doc."""
+    names = list(variants or VARIANTS)
+    limit_blas_threads(1)  # as the sqp backend does: the same conditions for every variant
+    out: dict[str, Any] = {"machine": machine(), "duration_s": duration, "variants": {}}
+    res = out["variants"]
+    for name in names:
+        kind, strategy, backend, options, _ = VARIANTS[name]
+        res[name] = run_variant(kind, strategy, backend, options, duration, warmup)
+    for name in names:
+        ref = VARIANTS[name][4]
+        if ref in res:
+            a, b = np.array(res[name]["commands"]), np.array(res[ref]["commands"])
+            res[name]["vs"] = ref
+            res[name]["max_command_diff"] = float(np.abs(a - b).max())
+            res[name]["cost_ratio"] = res[name]["closed_loop_cost"] / res[ref]["closed_loop_cost"]
+    if "baseline" in res:
+        for r in res.values():
+            r["speedup_vs_baseline"] = res["baseline"]["median_ms"] / r["median_ms"]
+    for r in res.values():
+        r.pop("commands")
+    return out
+
+
+def format_controller(result: dict[str, Any]) -> str:
+    """The results as a Markdown table."""
+    head = (
+        "| variant | backend | median ms | p95 ms | max ms | iters | fails | x baseline "
+        "| EE RMSE m | cost | vs ref: max du, cost ratio | bound viol | vel. bound active |"
+    )
+    lines = [head, "|" + "---|" * 13]
+    for name, r in result["variants"].items():
+        vs = f"{r['max_command_diff']:.1e}, {r['cost_ratio']:.4f} ({r['vs']})" if "vs" in r else "-"
+        lines.append(
+            f"| {name} | {r['backend']} | {r['median_ms']:.2f} | {r['p95_ms']:.2f} "
+            f"| {r['max_ms']:.2f} | {r['iterations_mean']:.1f} | {r['failures']} "
+            f"| {r.get('speedup_vs_baseline', float('nan')):.1f} | {r['ee_rmse_m']:.5f} "
+            f"| {r['closed_loop_cost']:.5f} | {vs} | {r['max_bound_violation']:.1e} "
+            f"| {100 * r['velocity_bound_active_share']:.0f}% |"
+        )
+    m = result["machine"]
+    lines.append("")
+    lines.append(
+        f"Machine: {m['cpu']}, {m['cores']} cores, {m['platform']}; Python {m['python']}, "
+        f"CasADi {m['casadi']}; load average at start {m['load_average_at_start']}. "
+        f"Closed loop of {result['duration_s']:g} s per variant."
+    )
+    return "\n".join(lines)
