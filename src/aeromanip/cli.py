@@ -93,8 +93,15 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    from aeromanip.bench.controller import VARIANTS, bench_controller, format_controller
     from aeromanip.bench.kinematics import bench_kinematics, format_kinematics
 
+    names = args.variant or list(VARIANTS)
+    unknown = [n for n in names if n not in VARIANTS]
+    if unknown:
+        raise ConfigError(f"--variant {unknown[0]}: unknown (have: {', '.join(VARIANTS)})")
+    if not args.duration > 0:
+        raise ConfigError(f"--duration: must be > 0 s, got {args.duration}")
     results = {}
     if args.what in ("kinematics", "all"):
         for robot in ("planar-2dof", "x8-3dof"):
@@ -103,14 +110,6 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             print(format_kinematics(r))
             print()
     if args.what in ("controller", "all"):
-        from aeromanip.bench.controller import VARIANTS, bench_controller, format_controller
-
-        names = args.variant or list(VARIANTS)
-        unknown = [n for n in names if n not in VARIANTS]
-        if unknown:
-            raise ConfigError(f"--variant {unknown[0]}: unknown (have: {', '.join(VARIANTS)})")
-        if args.duration <= 0:
-            raise ConfigError(f"--duration: must be > 0 s, got {args.duration}")
         print(f"controller step, flight problem, {args.duration:g} s closed loop per variant:")
         r = bench_controller(names, duration=args.duration)
         results["controller"] = r

@@ -35,11 +35,13 @@ from aeromanip.codegen import limit_blas_threads
 from aeromanip.controller import Controller
 from aeromanip.ocp import Problem, Transcription
 from aeromanip.scenario import Scenario, load_scenarios
+from aeromanip.solvers import make_backend
 
 FAST = 12.0  # reference speed-up of the constrained variant
 FLIGHT_FREQ = (0.0125, 0.0091, 0.0067)  # Hz, flight.toml's Lissajous frequencies
 
 REF_OPTIONS = {"ipopt.tol": 1e-10}  # the reference answers: IPOPT converged tightly
+RESTART = {"ipopt.mu_init": 1e-10, "ipopt.warm_start_bound_push": 1e-10}
 
 # name: (scenario kind, strategy ("residual": hierarchical, mode "residual"), backend,
 #        solver options, the variant it should equal)
@@ -97,6 +99,67 @@ def _scenario(kind: str, duration: float) -> Scenario:
     return load_scenarios("flight", sets)[""]
 
 
+class IpoptShadow:
+    """IPOPT on the very NLPs a converged weighted controller solves, step by step.
+
+    Closed loops of two solvers can part where the NLP has several local optima (a fast
+    reference with binding velocity bounds has): from there on they solve different
+    NLPs. The shadow compares answers where the inputs are identical. At each step it
+    solves the controller's NLP (same state, previous command, time) with IPOPT
+    (``REF_OPTIONS``) twice: from the controller's own initial guess (same answer, or
+    another local optimum?), and restarted at the controller's answer with its
+    multipliers and a small barrier parameter (``RESTART``): if IPOPT stays there, the
+    answer is a local optimum to IPOPT's tolerance too.
+    """
+
+    def __init__(self, ctrl: Controller) -> None:
+        self.ctrl = ctrl
+        self.stage = ctrl.strategy.stages[0]
+        self.ipopt = make_backend(self.stage.tr, "ipopt", REF_OPTIONS)
+        # restarted at an answer, IPOPT's barrier must start small or it leaves the answer
+        self.restart = make_backend(self.stage.tr, "ipopt", {**REF_OPTIONS, **RESTART})
+        self.records: list[tuple[float, float, float, float]] = []
+
+    def before(self, x: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The NLP's parameters and the controller's initial guess, before its step."""
+        c = self.ctrl
+        p = self.stage.tr.parameters(x, c.u_prev, c.problem.stage_params(t))
+        return p, c._guesses(x)[0]
+
+    def after(self, p: np.ndarray, guess: np.ndarray) -> None:
+        """Solve with IPOPT and record the differences (commands [rad/s, m/s], costs)."""
+        tr, ans = self.stage.tr, self.stage.warm
+        if ans is None or not ans.success:
+            return
+        same = self.ipopt.solve(guess, p, tr.lbg, tr.ubg)
+        cert = self.restart.solve(ans.w, p, tr.lbg, tr.ubg, ans.lam_g, ans.lam_x)
+        if not (same.success and cert.success):
+            self.records.append((np.inf, np.inf, np.inf, np.inf))
+            return
+        u0 = tr.unpack(ans.w)[1][0]
+        self.records.append(
+            (
+                float(np.abs(tr.unpack(same.w)[1][0] - u0).max()),
+                (same.f - ans.f) / max(abs(ans.f), 1e-12),
+                float(np.abs(tr.unpack(cert.w)[1][0] - u0).max()),
+                (cert.f - ans.f) / max(abs(ans.f), 1e-12),
+            )
+        )
+
+    def summary(self, tol: float = 1e-4) -> dict[str, Any]:
+        """Agreement over the run; an "other optimum" step differs by more than ``tol``."""
+        r = np.array(self.records).reshape(-1, 4)
+        other = r[:, 0] > tol
+        return {
+            "shadow_steps": len(r),
+            "shadow_same_guess_max_du": float(r[~other, 0].max(initial=0.0)),
+            "shadow_other_optimum_steps": int(other.sum()),
+            "shadow_other_optimum_ipopt_cost_higher": int((r[other, 1] > 0).sum()),
+            "shadow_certified_max_du": float(r[:, 2].max(initial=0.0)),
+            "shadow_certified_max_rel_cost": float(np.abs(r[:, 3]).max(initial=0.0)),
+        }
+
+
 def _stepper(
     sc: Scenario, strategy: str, backend: str, options: dict | None
 ) -> tuple[Any, Callable]:
@@ -124,8 +187,10 @@ def run_variant(
     options: dict | None = None,
     duration: float = 60.0,
     warmup: int = 3,
+    shadowed: bool = False,
 ) -> dict[str, Any]:
-    """Closed loop of one variant: timing [ms], iterations, tracking and cost."""
+    """Closed loop of one variant: timing [ms], iterations, tracking and cost; with
+    ``shadowed`` (weighted strategy, converged backend) also ``IpoptShadow``'s summary."""
     sc = _scenario(kind, duration)
     pb, dt = sc.problem, sc.problem.dt
     ctrl, step = _stepper(sc, strategy, backend, options)
@@ -133,13 +198,17 @@ def run_variant(
     for k in range(warmup):  # compile, load, fill caches; then start afresh
         step(x, k * dt)
     ctrl.reset()
+    shadow = IpoptShadow(ctrl) if shadowed else None
     tr = Transcription(pb, pb.entries)
     b = pb.bounds
     xs, us, ts, its, fails = [], [], [], [], 0
     for k in range(sc.steps):
+        seen = shadow.before(x, k * dt) if shadow else None
         t0 = time.perf_counter()
         u, it, ok = step(x, k * dt)
         ts.append(time.perf_counter() - t0)
+        if shadow and seen is not None:  # outside the timed region
+            shadow.after(*seen)
         xs.append(x)
         us.append(u)
         its.append(it)
@@ -185,6 +254,7 @@ def run_variant(
         "max_bound_violation": viol,
         "velocity_bound_active_share": float(np.mean(active)),
         "commands": U.tolist(),
+        **(shadow.summary() if shadow else {}),
     }
 
 
@@ -219,7 +289,8 @@ def bench_controller(
     res = out["variants"]
     for name in names:
         kind, strategy, backend, options, _ = VARIANTS[name]
-        res[name] = run_variant(kind, strategy, backend, options, duration, warmup)
+        shadowed = strategy == "weighted" and backend == "sqp"
+        res[name] = run_variant(kind, strategy, backend, options, duration, warmup, shadowed)
     for name in names:
         ref = VARIANTS[name][4]
         if ref in res:
@@ -251,6 +322,23 @@ def format_controller(result: dict[str, Any]) -> str:
             f"| {r['closed_loop_cost']:.5f} | {vs} | {r['max_bound_violation']:.1e} "
             f"| {100 * r['velocity_bound_active_share']:.0f}% |"
         )
+    shadowed = {n: r for n, r in result["variants"].items() if "shadow_steps" in r}
+    if shadowed:
+        lines += [
+            "",
+            "IPOPT shadow (the same NLP at every step; du: largest command difference):",
+            "",
+            "| variant | steps | same guess: max du | other optimum (IPOPT's cost higher) "
+            "| IPOPT restarted at the answer: max du, max rel. cost change |",
+            "|" + "---|" * 5,
+        ]
+        for name, r in shadowed.items():
+            lines.append(
+                f"| {name} | {r['shadow_steps']} | {r['shadow_same_guess_max_du']:.1e} "
+                f"| {r['shadow_other_optimum_steps']} "
+                f"({r['shadow_other_optimum_ipopt_cost_higher']}) "
+                f"| {r['shadow_certified_max_du']:.1e}, {r['shadow_certified_max_rel_cost']:.1e} |"
+            )
     m = result["machine"]
     lines.append("")
     lines.append(

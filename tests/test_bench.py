@@ -1,0 +1,73 @@
+"""The controller benchmark's harness: its answers, not its timings (those are noisy)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from aeromanip.bench.controller import bench_controller, format_controller
+from aeromanip.cli import main
+
+
+@pytest.fixture(scope="module")
+def short_run():
+    return bench_controller(["baseline", "weighted", "constrained"], duration=20.0, warmup=1)
+
+
+def test_sqp_gives_the_plain_ipopt_closed_loop(short_run):
+    v = short_run["variants"]
+    assert v["baseline"]["failures"] == v["weighted"]["failures"] == 0
+    assert v["weighted"]["closed_loop_cost"] == pytest.approx(
+        v["baseline"]["closed_loop_cost"], rel=1e-3
+    )
+    assert v["weighted"]["ee_rmse_m"] == pytest.approx(v["baseline"]["ee_rmse_m"], rel=1e-2)
+
+
+def test_shadow_ipopt_agrees_step_by_step(short_run):
+    weighted, constrained = (short_run["variants"][n] for n in ("weighted", "constrained"))
+    # nominal flight: IPOPT from the same guess gives the same command (1e-4) at every step
+    assert weighted["shadow_steps"] == weighted["steps"] == 40
+    assert weighted["shadow_other_optimum_steps"] == 0
+    # binding bounds make the NLP nonconvex: rarely, the solvers pick different optima...
+    assert constrained["shadow_other_optimum_steps"] <= 4
+    # ...but IPOPT restarted at each SQP answer stays there: each is a local optimum
+    for r in (weighted, constrained):
+        assert r["shadow_certified_max_du"] < 1e-4  # rad/s or m/s
+        assert r["shadow_certified_max_rel_cost"] < 1e-5
+
+
+def test_constrained_variant_binds_the_velocity_bounds_without_violating_them(short_run):
+    r = short_run["variants"]["constrained"]
+    assert r["failures"] == 0
+    assert r["velocity_bound_active_share"] > 0.2
+    assert r["max_bound_violation"] <= 1e-6
+
+
+def test_table_lists_every_variant(short_run):
+    table = format_controller(short_run)
+    for name in short_run["variants"]:
+        assert f"| {name} |" in table
+    assert "IPOPT shadow" in table
+    assert np.isfinite(short_run["variants"]["weighted"]["speedup_vs_baseline"])
+
+
+def test_cli_bench_writes_json(tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    args = ["bench", "controller", "--variant", "rti", "--duration", "2", "--json", str(out)]
+    assert main(args) == 0
+    data = json.loads(out.read_text())
+    assert data["controller"]["variants"]["rti"]["steps"] == 4
+    assert "| rti |" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["bench", "--variant", "fastest"], "--variant fastest: unknown"),
+        (["bench", "controller", "--duration", "0"], "--duration: must be > 0 s"),
+    ],
+)
+def test_bad_bench_arguments_are_one_clear_line(args, message, capsys):
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
