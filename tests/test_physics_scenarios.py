@@ -1,5 +1,6 @@
 """The NMPC flying the full-dynamics UAM (MuJoCo): the paper's claim behind the CoG task."""
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -28,6 +29,9 @@ def test_physics_log_has_tilt_motors_and_arm_torque(flights):
         assert col in log, col
     s = read_summary(flights["hierarchical"] / "summary.json")
     assert s["roll_pitch_mean_deg"] >= 0.0 and s["arm_torque_mean_nm"] >= 0.0
+    # the model flown is in the run directory, loadable by MuJoCo (and its viewer)
+    model = mujoco.MjModel.from_xml_path(str(flights["hierarchical"] / "robot.xml"))
+    assert model.nu == 4 + 3  # rotors + arm servos
 
 
 def test_cog_alignment_lowers_tilt_and_arm_torque_at_equal_tracking(flights):

@@ -1,7 +1,8 @@
 """The closed loop: controller and simulator, step by step, into a ``RunLog``; run outputs.
 
 A run directory holds (DESIGN.md contract): ``config.toml`` (the resolved scenario),
-``robot.urdf``, ``log.csv`` (+ ``meta.json``), ``summary.json`` and ``figures/*.png``.
+``robot.urdf``, ``log.csv`` (+ ``meta.json``), ``summary.json`` and ``figures/*.png``;
+physics runs also ``robot.xml``, the MJCF model flown.
 A scenario with variants writes one such directory per variant plus comparison figures.
 """
 
@@ -144,8 +145,10 @@ def simulate(
             for lv in cmd.levels:
                 row[f"level{lv.level}_cost"] = lv.cost
                 row[f"level{lv.level}_gain"] = lv.gain
+        now = {k: v for k, v in sim.extras().items() if k in sim.instant_extras}
         sim.advance(cmd.u, cmd.plan_x, dt)
-        row.update(sim.extras())
+        row.update(sim.extras())  # means over the period this row's command flew
+        row.update(now)  # values at this row's time, as the state
         rows.append(row)
         if on_step is not None:
             on_step(k, row)
@@ -180,6 +183,8 @@ def write_run(sc: Scenario, log: RunLog, out_dir: Path, figures: bool = True) ->
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "config.toml").write_text(tomli_w.dumps(_toml_safe(sc.resolved)))
     (out_dir / "robot.urdf").write_text(robot_to_urdf(sc.robot))
+    if sc.sim == "physics":  # the model flown: python -m mujoco.viewer --mjcf=robot.xml
+        (out_dir / "robot.xml").write_text(make_simulator(sc).to_xml())
     log.save(out_dir)
     summary = log.summary()
     summary.update(

@@ -16,6 +16,10 @@ import numpy as np
 class Simulator(ABC):
     """One verb per control period: ``advance(u, plan_x, dt)``."""
 
+    #: keys of ``extras()`` that are values at the current instant (the others are means
+    #: over the period the last ``advance`` flew)
+    instant_extras: tuple[str, ...] = ()
+
     @abstractmethod
     def reset(self, x0: np.ndarray) -> None:
         """Start at NMPC state ``x0`` = [platform DoFs, q] at rest."""

@@ -81,6 +81,8 @@ class PhysicsSimulator(Simulator):
         outer_every: physics steps per outer-loop tick; outer_rate_hz: its actual rate [Hz].
     """
 
+    instant_extras = ("roll", "pitch")
+
     def __init__(
         self,
         spec: RobotSpec,
