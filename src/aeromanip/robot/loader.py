@@ -55,14 +55,32 @@ def builtin_robots() -> dict[str, str]:
 def load_robot(name_or_path: str | Path) -> RobotSpec:
     """Load a built-in robot by name (e.g. ``"x8-3dof"``) or a robot TOML file."""
     path = resolve_toml(name_or_path, "aeromanip.robots", "robot")
-    return robot_from_table(load_toml(path), base_dir=path.parent)
+    return robot_from_table(load_toml(path), base_dir=path.parent, source=path)
 
 
 def robot_from_table(
-    data: dict[str, Any] | Table, base_dir: Path | None = None, path: str = ""
+    data: dict[str, Any] | Table,
+    base_dir: Path | None = None,
+    path: str = "",
+    *,
+    source: str | Path | None = None,
 ) -> RobotSpec:
-    """Build a spec from a parsed TOML table; errors name the key path under ``path``."""
+    """Build a spec from a parsed TOML table.
+
+    Every ``ConfigError`` names the full key path (under ``path``, or the ``Table``'s own
+    path) and, when ``source`` (the robot's TOML file) is given, starts with that file:
+    ``"/path/arm.toml: joints[1].axis: must be non-zero, got [0.0, 0.0, 0.0]"``.
+    """
     t = data if isinstance(data, Table) else Table(data, path)
+    try:
+        return _robot(t, base_dir)
+    except ConfigError as e:
+        if source is None:
+            raise
+        raise ConfigError(f"{source}: {e}") from None
+
+
+def _robot(t: Table, base_dir: Path | None) -> RobotSpec:
     name = t.str("name")
     t.str("description", "")
     pt = t.table("platform")
@@ -98,16 +116,21 @@ def robot_from_table(
         if not t.has("end_effector"):
             ee_xyz, ee_rpy = urdf_ee
     t.done()
-    return RobotSpec(
-        name=name,
-        platform=platform,
-        joints=joints,
-        mount_xyz=mount_xyz,  # type: ignore[arg-type]
-        mount_rpy=mount_rpy,  # type: ignore[arg-type]
-        ee_xyz=ee_xyz,  # type: ignore[arg-type]
-        ee_rpy=ee_rpy,  # type: ignore[arg-type]
-        ee_link=ee_link,
-    )
+    try:
+        return RobotSpec(
+            name=name,
+            platform=platform,
+            joints=joints,
+            mount_xyz=mount_xyz,  # type: ignore[arg-type]
+            mount_rpy=mount_rpy,  # type: ignore[arg-type]
+            ee_xyz=ee_xyz,  # type: ignore[arg-type]
+            ee_rpy=ee_rpy,  # type: ignore[arg-type]
+            ee_link=ee_link,
+        )
+    except ConfigError as e:  # spec validation names paths relative to the robot table
+        if not t.path:
+            raise
+        raise ConfigError(f"{t.path}.{e}") from None
 
 
 def _joint(jt: Table) -> Joint:

@@ -128,6 +128,15 @@ class RobotSpec:
         return sum(j.link.mass for j in self.joints)
 
 
+_FRAME_KEYS = {
+    "mount_xyz": "mount.xyz",
+    "mount_rpy": "mount.rpy",
+    "ee_xyz": "end_effector.xyz",
+    "ee_rpy": "end_effector.rpy",
+}
+"""Spec attributes of the fixed frames -> their key paths in a robot TOML."""
+
+
 def _finite(value: float, path: str) -> None:
     if not math.isfinite(value):
         raise ConfigError(f"{path}: must be a finite number, got {value!r}")
@@ -141,7 +150,11 @@ def _vec(value: Sequence[float], path: str) -> None:
 
 
 def validate(spec: RobotSpec) -> None:
-    """Check a spec; raise ``ConfigError`` naming the key path of the first problem."""
+    """Check a spec; raise ``ConfigError`` naming the key path of the first problem.
+
+    Key paths are those of the robot TOML format (``joints[1].axis``, ``end_effector.xyz``),
+    relative to the robot table; ``robot_from_table`` adds the table's prefix and file.
+    """
     dofs = spec.platform.dofs
     for i, d in enumerate(dofs):
         if d not in PLATFORM_DOFS:
@@ -170,8 +183,8 @@ def validate(spec: RobotSpec) -> None:
         raise ConfigError(f"platform.arm_length: must be > 0, got {spec.platform.arm_length}")
     if not spec.joints:
         raise ConfigError("joints: the arm needs at least one joint")
-    for key in ("mount_xyz", "mount_rpy", "ee_xyz", "ee_rpy"):
-        _vec(getattr(spec, key), key.replace("_", ".", 1))
+    for attr, key in _FRAME_KEYS.items():
+        _vec(getattr(spec, attr), key)
     link_names: set[str] = {spec.base_link, spec.ee_link}
     joint_names: set[str] = set()
     for i, j in enumerate(spec.joints):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import casadi as ca
 
+from aeromanip.errors import ConfigError
 from aeromanip.tasks.base import Stage, Task
 
 
@@ -36,7 +37,10 @@ class CogVelocity(Task):
     def residual(self, stage: Stage) -> ca.SX:
         """``J_Gxy(x) qdot``."""
         if stage.u is None:
-            raise ValueError("CogVelocity needs a command")
+            raise ConfigError(
+                f"{type(self).__name__}.residual: needs the stage command u, got None "
+                "(the terminal stage has none: use terminal_residual)"
+            )
         qdot = stage.u[stage.kin.n_platform :]
         return (stage.kin.cog_jacobian(stage.x) @ qdot)[:2]
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import casadi as ca
 
+from aeromanip.errors import ConfigError
 from aeromanip.tasks.base import Stage, Task
 
 
@@ -20,7 +21,10 @@ class ControlRate(Task):
     def residual(self, stage: Stage) -> ca.SX:
         """``u_k - u_{k-1}``."""
         if stage.u is None:
-            raise ValueError("ControlRate needs a command")
+            raise ConfigError(
+                f"{type(self).__name__}.residual: needs the stage command u, got None "
+                "(the terminal stage has none: use terminal_residual)"
+            )
         return stage.u - stage.u_prev
 
     def terminal_residual(self, stage: Stage) -> ca.SX:
