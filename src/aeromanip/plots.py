@@ -3,11 +3,12 @@
 Uses ``matplotlib.figure.Figure`` directly (no pyplot, no GUI backend). Each function
 writes PNG(s) into ``out_dir`` (created) and returns their paths. Meta keys used (all
 optional): ``bounds``, ``state_names``, ``waypoints``, ``scenario`` (see ``runlog``).
+Layout helpers (margins, one legend per figure under its title) live in ``plot_style``.
 
 Single run: ``plot_tracking`` (Figs. 2, 7), ``plot_commands`` (Fig. 3), ``plot_joints``
-(Fig. 8), ``plot_platform`` (Fig. 9), ``plot_cog``, ``plot_solve_time``; ``plot_run``
-draws all that apply. Several variants: ``plot_condition`` (Fig. 4), ``plot_paths_3d``
-(Figs. 5-6), ``plot_errors``; ``plot_comparison`` draws those.
+(Fig. 8), ``plot_platform`` (Fig. 9), ``plot_cog``, ``plot_attitude`` (physics runs),
+``plot_solve_time``; ``plot_run`` draws all that apply. Several variants: ``plot_condition``
+(Fig. 4), ``plot_paths_3d`` (Figs. 5-6), ``plot_errors``; ``plot_comparison`` draws those.
 """
 
 from __future__ import annotations
@@ -18,20 +19,24 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
-from aeromanip.runlog import RunLog, bound_pair
+from aeromanip.plot_style import (
+    active,
+    bound_lines,
+    finish,
+    grid,
+    margins,
+    save,
+    title_and_legend,
+    unit,
+)
+from aeromanip.runlog import RunLog
 
-DPI = 120
 PLATFORM = ("x", "y", "z", "yaw")
-_LEGEND: dict[str, Any] = {"loc": "upper right", "fontsize": "small", "framealpha": 0.8}
-
-
-def _unit(name: str, rate: bool = False) -> str:
-    """SI unit of a state DoF (``rate``: of its derivative)."""
-    base = "m" if name in ("x", "y", "z") else "rad"
-    return f"{base}/s" if rate else base
+REF_STYLE: dict[str, Any] = {"color": "r", "ls": "--", "lw": 1.2, "label": "reference"}
+START_STYLE: dict[str, Any] = {"marker": "o", "ms": 7, "mfc": "limegreen", "mec": "k", "ls": ""}
 
 
 def _title(log: RunLog, what: str) -> str:
@@ -39,105 +44,47 @@ def _title(log: RunLog, what: str) -> str:
     return f"{scen}: {what}" if scen else what
 
 
-def _save(fig: Figure, out_dir: str | Path, name: str) -> Path:
-    d = Path(out_dir)
-    d.mkdir(parents=True, exist_ok=True)
-    path = d / name
-    fig.savefig(path, dpi=DPI)
-    return path
-
-
-def _margins(
-    fig: Figure,
-    nrows: int = 1,
-    ncols: int = 1,
-    *,
-    left: float = 0.9,
-    right: float = 0.25,
-    top: float = 0.6,
-    bottom: float = 0.55,
-    hgap: float = 0.3,
-    wgap: float = 1.0,
-) -> None:
-    """Fixed margins and gaps in inches (cheaper and steadier than a layout engine)."""
-    w, h = fig.get_size_inches()
-    ax_w = (w - left - right - wgap * (ncols - 1)) / ncols
-    ax_h = (h - top - bottom - hgap * (nrows - 1)) / nrows
-    fig.subplots_adjust(
-        left=left / w,
-        right=1 - right / w,
-        top=1 - top / h,
-        bottom=bottom / h,
-        wspace=wgap / ax_w,
-        hspace=hgap / ax_h,
-    )
-
-
-def _grid(
-    n: int, width: float = 9.0, row_h: float = 2.2, max_rows: int = 4
-) -> tuple[Figure, list[Axes]]:
-    """A figure with ``n`` time-series axes sharing x (two columns beyond ``max_rows``)."""
-    ncols = 1 if n <= max_rows else 2
-    nrows = math.ceil(n / ncols)
-    fig = Figure(figsize=(width if ncols == 1 else width * 1.6, 1.15 + row_h * nrows))
-    axes = fig.subplots(nrows, ncols, sharex=True, squeeze=False).ravel().tolist()
-    _margins(fig, nrows, ncols, hgap=0.3 if n <= max_rows else 0.45)
-    for ax in axes[n:]:
-        ax.set_visible(False)
-    for i, ax in enumerate(axes[:n]):
-        if i + ncols >= n:  # nothing visible below: this axes shows the time axis
-            ax.xaxis.set_tick_params(labelbottom=True)
-            ax.set_xlabel("t [s]")
-    return fig, axes[:n]
-
-
 def _bounds_of(log: RunLog, bounds: Mapping[str, Any] | None = None) -> Mapping[str, Any]:
     return bounds if bounds is not None else (log.meta.get("bounds") or {})
 
 
-def _bound_lines(ax: Axes, bounds: Mapping[str, Any], key: str) -> None:
-    """Dashed horizontal lines at the finite sides of ``bounds[key]``."""
-    if bounds.get(key) is None:
-        return
-    label = "bounds"
-    for v in bound_pair(bounds[key], key):
-        if math.isfinite(v):
-            ax.axhline(v, color="0.3", ls="--", lw=1.0, label=label)
-            label = "_nolegend_"
+def _shown(log: RunLog, name: str) -> bool:
+    """A logged column worth a panel: an active NMPC DoF (``state_names``) or not all zero."""
+    return name in log and (name in (log.meta.get("state_names") or []) or active(log.column(name)))
 
 
-def _finish(ax: Axes, ylabel: str, legend: bool = True) -> None:
-    ax.set_ylabel(ylabel)
-    ax.grid(True, alpha=0.4)
-    if legend and ax.get_legend_handles_labels()[0]:
-        ax.legend(**_LEGEND)
-
-
-def _active(col: np.ndarray) -> bool:
-    return bool(col.size) and bool(np.any(np.nan_to_num(col) != 0.0))
+def _tracked_axes(log: RunLog) -> list[str]:
+    """World axes whose reference or EE position is not constantly zero (planar: y, z)."""
+    axes = [c for c in "xyz" if active(log.column(f"ref_{c}")) or active(log.column(f"ee_{c}"))]
+    return axes or list("xyz")
 
 
 def plot_tracking(log: RunLog, out_dir: str | Path, name: str = "ee_tracking.png") -> list[Path]:
-    """EE position vs reference per world axis, plus the error norm [m] (Figs. 2 and 7)."""
+    """EE position vs reference per used world axis [m], plus the error norm [mm] (Figs. 2, 7).
+
+    Axes whose reference and EE position are both constantly zero are left out (the planar
+    robot moves in the y-z plane; the paper's Fig. 2 likewise omits its null axis).
+    """
     t = log.column("t")
-    fig, axes = _grid(4)
-    for ax, c in zip(axes[:3], "xyz", strict=True):
-        ax.plot(t, log.column(f"ref_{c}"), "r--", lw=1.2, label="reference")
-        ax.plot(t, log.column(f"ee_{c}"), "b-", lw=1.2, label="end effector")
-        _finish(ax, f"{c}_e [m]")
+    coords = _tracked_axes(log)
+    fig, axes = grid(len(coords) + 1)
+    for ax, c in zip(axes, coords, strict=False):
+        ax.plot(t, log.column(f"ee_{c}"), "b-", lw=1.4, label="end effector")
+        ax.plot(t, log.column(f"ref_{c}"), **REF_STYLE)  # on top: visible where they coincide
+        finish(ax, f"{c}_e [m]")
     err = log.ee_error()
     rmse = float(np.sqrt(np.nanmean(err**2))) if err.size else math.nan
-    axes[3].plot(t, err, "k-", lw=1.0, label=f"|ee - ref| (RMSE {rmse * 1000:.1f} mm)")
-    _finish(axes[3], "error [m]")
-    fig.suptitle(_title(log, "end-effector tracking (world frame)"))
-    return [_save(fig, out_dir, name)]
+    axes[-1].plot(t, err * 1000, "k-", lw=1.0, label=f"|ee - ref| (RMSE {rmse * 1000:.1f} mm)")
+    finish(axes[-1], "error [mm]")
+    title_and_legend(fig, axes, _title(log, "end-effector tracking (world frame)"))
+    return [save(fig, out_dir, name)]
 
 
 def _command_dofs(log: RunLog) -> list[str]:
     names = log.meta.get("state_names")
     if names:
         return [n for n in names if f"u_{n}" in log]
-    dofs = [n for n in PLATFORM if f"u_{n}" in log and _active(log.column(f"u_{n}"))]
+    dofs = [n for n in PLATFORM if f"u_{n}" in log and active(log.column(f"u_{n}"))]
     return dofs + [f"q{i}" for i in range(1, log.n_joints + 1) if f"u_q{i}" in log]
 
 
@@ -153,28 +100,30 @@ def plot_commands(
         return []
     b = _bounds_of(log, bounds)
     t = log.column("t")
-    fig, axes = _grid(len(dofs))
+    fig, axes = grid(len(dofs))
     for ax, dof in zip(axes, dofs, strict=True):
-        color = "C0" if dof in PLATFORM else "C1"
-        ax.step(t, log.column(f"u_{dof}"), where="post", color=color, lw=1.2, label=f"u_{dof}")
-        _bound_lines(ax, b, f"u_{dof}")
-        _finish(ax, f"u_{dof} [{_unit(dof, rate=True)}]")
-    fig.suptitle(_title(log, "NMPC commands (platform: blue, arm joints: orange)"))
-    return [_save(fig, out_dir, name)]
+        plat = dof in PLATFORM
+        label = "platform velocity command" if plat else "arm joint velocity command"
+        ax.step(t, log.column(f"u_{dof}"), where="post", color="C0" if plat else "C1", lw=1.2,
+                label=label)
+        bound_lines(ax, b, f"u_{dof}")
+        finish(ax, f"u_{dof} [{unit(dof, rate=True)}]")
+    title_and_legend(fig, axes, _title(log, "NMPC velocity commands"))
+    return [save(fig, out_dir, name)]
 
 
 def _series_plot(
-    log: RunLog, dofs: list[str], out_dir: str | Path, name: str, title: str
+    log: RunLog, dofs: list[str], out_dir: str | Path, name: str, title: str, what: str
 ) -> list[Path]:
     b = _bounds_of(log)
     t = log.column("t")
-    fig, axes = _grid(len(dofs))
+    fig, axes = grid(len(dofs))
     for ax, dof in zip(axes, dofs, strict=True):
-        ax.plot(t, log.column(dof), "b-", lw=1.2, label=dof)
-        _bound_lines(ax, b, dof)
-        _finish(ax, f"{dof} [{_unit(dof)}]")
-    fig.suptitle(_title(log, title))
-    return [_save(fig, out_dir, name)]
+        ax.plot(t, log.column(dof), "b-", lw=1.2, label=what)
+        bound_lines(ax, b, dof)
+        finish(ax, f"{dof} [{unit(dof)}]")
+    title_and_legend(fig, axes, _title(log, title))
+    return [save(fig, out_dir, name)]
 
 
 def plot_joints(log: RunLog, out_dir: str | Path, name: str = "joints.png") -> list[Path]:
@@ -182,38 +131,75 @@ def plot_joints(log: RunLog, out_dir: str | Path, name: str = "joints.png") -> l
     dofs = [f"q{i}" for i in range(1, log.n_joints + 1)]
     if not dofs:
         return []
-    return _series_plot(log, dofs, out_dir, name, "arm joint positions")
+    return _series_plot(log, dofs, out_dir, name, "arm joint positions", "joint position")
 
 
 def plot_platform(log: RunLog, out_dir: str | Path, name: str = "platform.png") -> list[Path]:
-    """Platform x, y, z [m] (and yaw [rad] when active) with dashed bounds (Fig. 9)."""
-    active = log.meta.get("state_names") or []
-    dofs = [d for d in ("x", "y", "z") if d in log]
-    if "yaw" in log and ("yaw" in active or _active(log.column("yaw"))):
-        dofs.append("yaw")
+    """Platform x, y, z [m] and yaw [rad] that are active or move, with dashed bounds (Fig. 9)."""
+    dofs = [d for d in PLATFORM if _shown(log, d)]
+    if not any(d in dofs for d in "xyz"):  # a platform at the origin: still show x, y, z
+        dofs = [d for d in "xyz" if d in log] + dofs
     if not dofs:
         return []
-    return _series_plot(log, dofs, out_dir, name, "platform position (world frame)")
+    return _series_plot(
+        log, dofs, out_dir, name, "platform position (world frame)", "platform position"
+    )
 
 
 def plot_cog(log: RunLog, out_dir: str | Path, name: str = "cog_offset.png") -> list[Path]:
-    """Arm CoG offset in the body xy plane [m]; roll/pitch [deg] when logged."""
+    """Arm CoG offset in the body xy plane [m] (components that are not all zero, and norm)."""
     if "cog_bx" not in log or "cog_by" not in log:
         return []
-    tilt = "roll" in log and "pitch" in log
     t = log.column("t")
-    fig, axes = _grid(2 if tilt else 1, row_h=2.6)
+    fig, axes = grid(1, row_h=2.6)
     bx, by = log.column("cog_bx"), log.column("cog_by")
-    axes[0].plot(t, bx, lw=1.0, label="cog_bx")
-    axes[0].plot(t, by, lw=1.0, label="cog_by")
+    for col, c, color in ((bx, "cog_bx", "C0"), (by, "cog_by", "C1")):
+        if active(col):
+            axes[0].plot(t, col, color=color, lw=1.0, label=f"{c} (body {c[-1]})")
     axes[0].plot(t, np.hypot(bx, by), "k-", lw=1.4, label="|cog_xy|")
-    _finish(axes[0], "arm CoG offset [m]")
+    finish(axes[0], "arm CoG offset [m]")
+    title_and_legend(fig, axes, _title(log, "arm CoG offset from the body z axis"))
+    return [save(fig, out_dir, name)]
+
+
+def _motor_columns(log: RunLog) -> list[str]:
+    """``motor_1``, ``motor_2``, ... up to the first one missing."""
+    n = 0
+    while f"motor_{n + 1}" in log:
+        n += 1
+    return [f"motor_{i}" for i in range(1, n + 1)]
+
+
+def plot_attitude(log: RunLog, out_dir: str | Path, name: str = "attitude.png") -> list[Path]:
+    """Physics runs: roll/pitch [deg], arm torque on the base [N m], motor thrusts [N].
+
+    One panel per group of columns present; nothing is written for a log without any
+    (kinematic simulation).
+    """
+    tilt = "roll" in log and "pitch" in log
+    motors = _motor_columns(log)
+    panels = int(tilt) + int("arm_torque" in log) + int(bool(motors))
+    if not panels:
+        return []
+    t = log.column("t")
+    fig, axes = grid(panels, row_h=2.4)
+    it = iter(axes)
     if tilt:
-        axes[1].plot(t, np.degrees(log.column("roll")), lw=1.0, label="roll")
-        axes[1].plot(t, np.degrees(log.column("pitch")), lw=1.0, label="pitch")
-        _finish(axes[1], "tilt [deg]")
-    fig.suptitle(_title(log, "arm CoG offset from the body z axis"))
-    return [_save(fig, out_dir, name)]
+        ax = next(it)
+        ax.plot(t, np.degrees(log.column("roll")), color="C0", lw=1.0, label="roll")
+        ax.plot(t, np.degrees(log.column("pitch")), color="C1", lw=1.0, label="pitch")
+        finish(ax, "tilt [deg]")
+    if "arm_torque" in log:
+        ax = next(it)
+        ax.plot(t, log.column("arm_torque"), "k-", lw=1.2, label="arm torque")
+        finish(ax, "arm torque [N m]")
+    if motors:
+        ax = next(it)
+        for i, m in enumerate(motors):
+            ax.plot(t, log.column(m), color=f"C{(i + 2) % 10}", lw=1.0, label=m.replace("_", " "))
+        finish(ax, "motor thrust [N]")
+    title_and_legend(fig, axes, _title(log, "platform attitude and arm load (physics)"))
+    return [save(fig, out_dir, name)]
 
 
 def plot_solve_time(log: RunLog, out_dir: str | Path, name: str = "solve_time.png") -> list[Path]:
@@ -221,10 +207,11 @@ def plot_solve_time(log: RunLog, out_dir: str | Path, name: str = "solve_time.pn
     if "solve_ms" not in log or len(log) == 0:
         return []
     t, ms = log.column("t"), log.column("solve_ms")
-    fig, axes = _grid(1, row_h=3.0)
+    fig, axes = grid(1, row_h=3.0)
     ax = axes[0]
     ax.plot(t, ms, "b.-", lw=0.8, ms=3, label="solve time")
-    ax.axhline(float(np.nanmedian(ms)), color="g", ls=":", label="median")
+    median = float(np.nanmedian(ms))
+    ax.axhline(median, color="g", ls=":", label=f"median ({median:.1f} ms)")
     if t.size > 1:
         period_ms = float(np.median(np.diff(t))) * 1000.0
         ax.axhline(period_ms, color="r", ls="--", label=f"control period ({period_ms:.0f} ms)")
@@ -232,9 +219,9 @@ def plot_solve_time(log: RunLog, out_dir: str | Path, name: str = "solve_time.pn
         bad = log.column("status") != "ok"
         if np.any(bad):
             ax.plot(t[bad], ms[bad], "rx", ms=7, label="status != ok")
-    _finish(ax, "solve time [ms]")
-    fig.suptitle(_title(log, "NMPC solve time per control step"))
-    return [_save(fig, out_dir, name)]
+    finish(ax, "solve time [ms]")
+    title_and_legend(fig, axes, _title(log, "NMPC solve time per control step"))
+    return [save(fig, out_dir, name)]
 
 
 def plot_run(log: RunLog, out_dir: str | Path) -> list[Path]:
@@ -246,6 +233,7 @@ def plot_run(log: RunLog, out_dir: str | Path) -> list[Path]:
     paths += plot_joints(log, out_dir)
     paths += plot_platform(log, out_dir)
     paths += plot_cog(log, out_dir)
+    paths += plot_attitude(log, out_dir)
     paths += plot_solve_time(log, out_dir)
     return paths
 
@@ -259,7 +247,7 @@ def plot_condition(
         return []
     fig = Figure(figsize=(9, 4))
     ax = fig.add_subplot()
-    _margins(fig, top=0.45)
+    margins(fig)
     finite = []
     for label, log in logs.items():
         c = log.column("cond")
@@ -269,9 +257,9 @@ def plot_condition(
     if vals.size and vals.max() / vals.min() > 50:
         ax.set_yscale("log")
     ax.set_xlabel("t [s]")
-    _finish(ax, "condition number rho [-]")
-    ax.set_title("condition number of J_eq J_eq^T per variant")
-    return [_save(fig, out_dir, name)]
+    finish(ax, "condition number rho [-]")
+    title_and_legend(fig, [ax], "condition number of J_eq J_eq^T per variant")
+    return [save(fig, out_dir, name)]
 
 
 def _xyz(log: RunLog, prefix: str) -> np.ndarray | None:
@@ -279,6 +267,13 @@ def _xyz(log: RunLog, prefix: str) -> np.ndarray | None:
     if not all(n in log for n in names):
         return None
     return np.stack([log.column(n) for n in names], axis=1)
+
+
+def _inner_ticks(lo: float, hi: float) -> np.ndarray:
+    """About four round ticks strictly inside [lo, hi] (5 % clear of both ends)."""
+    ticks = MaxNLocator(5).tick_values(lo, hi)
+    pad = 0.05 * (hi - lo)
+    return ticks[(ticks >= lo + pad) & (ticks <= hi - pad)]
 
 
 def plot_paths_3d(
@@ -293,56 +288,67 @@ def plot_paths_3d(
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     mid = (pts.max(axis=0) + pts.min(axis=0)) / 2 if pts.size else np.zeros(3)
     half = max(float(np.max(pts.max(axis=0) - pts.min(axis=0))) / 2 if pts.size else 0.0, 0.1)
+    flat_x = bool(pts.size) and float(np.ptp(pts[:, 0])) < 1e-9
     n = len(logs)
     fig = Figure(figsize=(5.4 * n, 5.8))
-    fig.subplots_adjust(left=0.0, right=0.95, bottom=0.07, top=0.9, wspace=0.1)
+    fig.subplots_adjust(left=0.0, right=0.95, bottom=0.07, top=1 - 0.85 / 5.8, wspace=0.1)
+    axes = []
     for i, (label, log) in enumerate(logs.items()):
-        ax = fig.add_subplot(1, n, i + 1, projection="3d")
+        # drawing order, not depth, decides what is on top (reference over EE, starts last)
+        ax = fig.add_subplot(1, n, i + 1, projection="3d", computed_zorder=False)
+        axes.append(ax)
         ee, base, ref = paths[label]
-        if ref is not None:
-            ax.plot(*ref.T, "r--", lw=1.0, label="reference")
         ax.plot(*ee.T, "b-", lw=1.5, label="end effector")
+        if ref is not None:
+            ax.plot(*ref.T, **REF_STYLE)  # on top: visible where the EE tracks it
         if base is not None:
             ax.plot(*base.T, "k-", lw=1.5, label="platform")
-            ax.scatter(*base[0], color="k", marker="o", s=20)
-        ax.scatter(*ee[0], color="b", marker="o", s=20, label="start")
         wps = log.meta.get("waypoints")
         if wps:
             w = np.asarray(wps, dtype=float).reshape(-1, 3)
-            ax.scatter(*w.T, color="r", marker="*", s=80, depthshade=False, label="waypoints")
+            ax.plot(*w.T, "r*", ms=12, mec="darkred", label="waypoints")
+        for p in (ee, base):  # plot markers: no depth shading, so legend and marker agree
+            if p is not None:
+                ax.plot(*p[:1].T, **START_STYLE, label="start")
         for setter, m in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), mid, strict=True):
             setter(m - half, m + half)
         ax.set_box_aspect((1, 1, 1))
+        for setter, m in zip((ax.set_xticks, ax.set_yticks, ax.set_zticks), mid, strict=True):
+            setter(_inner_ticks(m - half, m + half))  # none at the corners: no label collisions
+        if flat_x:  # planar robot (y-z plane): look at that plane nearly face on
+            ax.view_init(elev=15, azim=-20)
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
         ax.set_zlabel("z [m]")
         ax.set_title(label)
-        ax.legend(loc="upper left", fontsize="small")
-    fig.suptitle("end-effector and platform paths (world frame)")
-    return [_save(fig, out_dir, name)]
+    title_and_legend(fig, axes, "end-effector and platform paths (world frame)")
+    return [save(fig, out_dir, name)]
 
 
 def plot_errors(
     logs: Mapping[str, RunLog], out_dir: str | Path, name: str = "comparison_errors.png"
 ) -> list[Path]:
-    """Tracking error |ee - ref| [m] and arm CoG offset |cog_xy| [m] per variant."""
+    """Tracking error |ee - ref| [mm] and arm CoG offset |cog_xy| [m] per variant."""
     logs = {k: v for k, v in logs.items() if len(v)}
     if not logs:
         return []
-    fig, axes = _grid(2, row_h=2.8)
-    for label, log in logs.items():
-        t = log.column("t")
+    fig, axes = grid(2, row_h=2.8)
+    for i, (label, log) in enumerate(logs.items()):
+        t, color, stats = log.column("t"), f"C{i % 10}", []
         if all(f"{p}_{c}" in log for p in ("ee", "ref") for c in "xyz"):
             err = log.ee_error()
-            rmse = float(np.sqrt(np.nanmean(err**2)))
-            axes[0].plot(t, err, lw=1.2, label=f"{label} (RMSE {rmse * 1000:.1f} mm)")
+            stats.append(f"RMSE {np.sqrt(np.nanmean(err**2)) * 1000:.1f} mm")
+            axes[0].plot(t, err * 1000, color=color, lw=1.2)
         if "cog_bx" in log and "cog_by" in log:
             cog = np.hypot(log.column("cog_bx"), log.column("cog_by"))
-            axes[1].plot(t, cog, lw=1.2, label=f"{label} (mean {np.nanmean(cog) * 1000:.1f} mm)")
-    _finish(axes[0], "|ee - ref| [m]")
-    _finish(axes[1], "|cog_xy| [m]")
-    fig.suptitle("tracking error and arm CoG offset per variant")
-    return [_save(fig, out_dir, name)]
+            stats.append(f"mean CoG {np.nanmean(cog) * 1000:.1f} mm")
+            axes[1].plot(t, cog, color=color, lw=1.2)
+        text = f"{label} ({', '.join(stats)})" if stats else label
+        axes[0].plot([], [], color=color, lw=1.2, label=text)
+    finish(axes[0], "|ee - ref| [mm]")
+    finish(axes[1], "|cog_xy| [m]")
+    title_and_legend(fig, axes, "tracking error and arm CoG offset per variant")
+    return [save(fig, out_dir, name)]
 
 
 def plot_comparison(logs: Mapping[str, RunLog], out_dir: str | Path) -> list[Path]:
