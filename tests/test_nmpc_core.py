@@ -107,18 +107,26 @@ def _cog_cost(pb, states):
     return float(sum(np.sum(np.asarray(c(x)).ravel()[:2] ** 2) for x in states))
 
 
-def test_three_levels_each_keeps_higher_optima():
+@pytest.mark.parametrize("mode", ["stagewise", "total"])
+def test_three_levels_each_keeps_higher_optima(mode):
     pb = make_problem(levels=(0, 1))
     pb.add_task(ConditionNumber("xyz"), weight=1e-4, level=2)
-    cmd = Controller(pb, "hierarchical").step(X0, 0.0)
+    hierarchy = {"mode": mode}
+    cmd = Controller(pb, "hierarchical", hierarchy=hierarchy).step(X0, 0.0)
     assert [lv.level for lv in cmd.levels] == [0, 1, 2]
     assert all(lv.success for lv in cmd.levels)
-    two = Controller(make_problem(levels=(0, 1)), "hierarchical").step(X0, 0.0)
+    two = Controller(make_problem(levels=(0, 1)), "hierarchical", hierarchy=hierarchy)
+    two_cmd = two.step(X0, 0.0)
     # levels 0 and 1 keep (within tolerance) their optimum from the two-level problem
     n = pb.horizon + 1
-    assert cmd.task_costs["tracking"] <= two.levels[0].cost * 1.001 + 1e-6 * n
-    assert cmd.task_costs["cog"] <= two.levels[1].cost * 1.001 + 1e-6 * n + 1e-9
-    assert cmd.levels[2].gain >= 0.0
+    assert cmd.task_costs["tracking"] <= two_cmd.levels[0].cost * 1.001 + 1e-6 * n
+    assert cmd.task_costs["cog"] <= two_cmd.levels[1].cost * 1.001 + 1e-6 * n + 1e-9
+    # ...and level 2 lowers the condition number's cost below what the two levels leave
+    rho_cost = pb.kin.condition_number("xyz")
+    def cond_cost(plan_x):
+        return sum((1.0 - float(rho_cost(x))) ** 2 for x in plan_x[1:])  # x0 is given
+    assert cond_cost(cmd.plan_x) < 0.99 * cond_cost(two_cmd.plan_x)
+    assert cmd.levels[2].gain > 0.0
 
 
 def test_raising_a_weight_lowers_that_task_cost():
@@ -172,7 +180,9 @@ def test_initial_state_outside_hard_bounds_is_a_status_not_a_crash():
     x[5] = 3.0  # shoulder far beyond its 1.6 rad limit, unrecoverable in one step
     cmd = Controller(pb, "weighted").step(x, 0.0)
     assert cmd.status == "stopped"
-    assert cmd.message
+    assert "state q2 = 3 outside [-1.6, 1.6]" in cmd.message, cmd.message
+    ok = Controller(pb, "weighted").step(X0, 0.0)
+    assert ok.status == "ok" and ok.message == ""
 
 
 def test_inconsistent_bounds_are_reported_before_solving():
@@ -263,3 +273,66 @@ def test_orientation_tracking_reaches_the_desired_pose():
     assert cmds[-1].status == "ok"
     np.testing.assert_allclose(np.asarray(pb.kin.ee_position(x)).ravel(), TARGET, atol=1e-3)
     np.testing.assert_allclose(np.asarray(pb.kin.ee_rotation(x)), target_R, atol=1e-3)
+
+
+def test_out_of_iterations_retry_goes_on_from_the_last_iterate():
+    """A warm-started solve that runs out of iterations is retried without multipliers
+    from where it stopped (not from the start again); another failure restarts."""
+    from aeromanip.solvers import NlpResult
+    from aeromanip.strategies import Weighted
+
+    st = Weighted(make_problem(levels=(0, 0))).stages[0]
+    n, m = st.tr.w.numel(), st.tr.g.numel()
+    seen = []
+
+    class Spy:
+        def __init__(self, first_status):
+            self.first_status = first_status
+
+        def solve(self, w0, p, lbg, ubg, lam_g0=None, lam_x0=None):
+            seen.append((w0.copy(), lam_g0 is not None))
+            ok = len(seen) % 2 == 0
+            return NlpResult(w0 + 1.0, np.zeros(m), np.zeros(n), 0.0, ok,
+                             "ok" if ok else self.first_status, 3, 0.0)
+
+    from aeromanip.strategies import _solve_stage
+
+    w0, p = np.zeros(n), np.zeros(st.tr.p.numel())
+    for status, restart in (("Maximum_Iterations_Exceeded", w0 + 1.0), ("Infeasible", w0)):
+        seen.clear()
+        st.backend = Spy(status)
+        st.warm = NlpResult(w0, np.zeros(m), np.zeros(n), 0.0, True, "ok", 1, 0.0)
+        res = _solve_stage(st, p, w0, st.tr.ubg)
+        assert res.success and res.iterations == 6
+        assert seen[0][1] and not seen[1][1]  # warm multipliers first, then none
+        np.testing.assert_array_equal(seen[1][0], restart)
+
+
+def test_solver_options_can_be_set_from_the_command_line():
+    from aeromanip.scenario import load_scenarios
+
+    sc = load_scenarios("flight", ["controller.backend='sqp'",
+                                   "controller.solver_options.max_iter=7"])[""]
+    assert sc.backend == "sqp" and sc.solver_options == {"max_iter": 7}
+    with pytest.raises(ConfigError, match=r"solver_options\.max_itr: unknown sqp option"):
+        Controller(sc.problem, "weighted", "sqp", {"max_itr": 7})
+
+
+class NanNearStart(Task):
+    """A user task whose residual is NaN around the start (log of a negative number)."""
+
+    name = "nan_task"
+
+    def residual(self, stage: Stage) -> ca.SX:
+        return ca.log(stage.x[0] - 5.0)
+
+
+@pytest.mark.parametrize("backend", ["ipopt", "fatrop", "sqp"])
+def test_a_task_that_is_nan_stops_the_robot_with_a_status(backend):
+    pb = Problem(X8, 10, 0.5)
+    pb.add_task(NanNearStart(), weight=1.0)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    options = {"codegen": False} if backend == "sqp" else None
+    cmd = Controller(pb, "weighted", backend, options).step(X0, 0.0)
+    assert cmd.status == "stopped" and np.all(cmd.u == 0.0)
+    assert "Invalid_Number_Detected" in cmd.message

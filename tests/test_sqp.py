@@ -213,3 +213,38 @@ def test_residual_mode_keeps_the_primary_optimum_and_improves_the_secondary():
         assert cmd.task_costs["tracking"] <= primary * (1 + 1e-3) + 1e-6 * (pb.horizon + 1)
         assert cmd.levels[1].gain > 0.0
         check_feasible(pb, cmd)
+
+
+def test_convexified_hessian_keeps_the_step_on_the_active_set():
+    """Indefinite H, positive definite on null(C): the penalty makes it positive definite
+    and the equality-constrained QP's step is that of the exact H (KKT solved directly)."""
+    from aeromanip.sqp import _convexified
+
+    rng = np.random.default_rng(3)
+    n, m = 8, 3
+    C = rng.normal(size=(m, n))
+    Z = np.linalg.svd(C)[2][m:].T  # null space of C
+    B = rng.normal(size=(n, n))
+    H = Z @ (np.eye(n - m) + 0.1 * (B[: n - m, : n - m] @ B[: n - m, : n - m].T)) @ Z.T
+    H -= 5.0 * C.T @ C  # strongly negative curvature across the constraints
+    assert np.linalg.eigvalsh(H).min() < 0.0
+    g, r = rng.normal(size=n), rng.normal(size=m)
+
+    def kkt_step(Hm):
+        K = np.block([[Hm, C.T], [C, np.zeros((m, m))]])
+        return np.linalg.solve(K, np.concatenate([-g, r]))[:n]
+
+    Hc = _convexified(H, C, np.zeros(0, dtype=int))
+    assert np.linalg.eigvalsh(Hc).min() > 0.0
+    np.testing.assert_allclose(kkt_step(Hc), kkt_step(H), atol=1e-9)
+    P = np.eye(n) * 2.0
+    assert _convexified(P, C, np.zeros(0, dtype=int)) is P  # already convex: unchanged
+
+
+def test_acceptable_level_ends_a_solve_that_cannot_reach_tol():
+    pb = make_problem()
+    ref = two_steps(pb, "weighted", "ipopt")
+    opts = {**FAST, "tol": 0.0, "acceptable_tol": 1e-6, "acceptable_iter": 3}
+    cmd = two_steps(pb, "weighted", "sqp", opts)
+    assert cmd.status == "ok" and cmd.levels[0].status == "Solved_To_Acceptable_Level"
+    np.testing.assert_allclose(cmd.plan_u, ref.plan_u, atol=1e-4)

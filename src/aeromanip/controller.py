@@ -157,6 +157,7 @@ class Controller:
             self._level_w = list(res.level_w)
             u = U[0].copy()
         else:
+            message += self._outside_bounds(x0)
             u, X, U, status = self._fallback(x0)
             self._level_w = []
             task_costs = {e.name: float("nan") for e in self.problem.entries}
@@ -165,6 +166,16 @@ class Controller:
         return Command(
             u, X, U, task_costs, status, message, res.iterations, res.solve_time_s, res.levels
         )
+
+    def _outside_bounds(self, x0: np.ndarray) -> str:
+        """Why a solve may fail that no solver can help: the state beyond its hard bounds."""
+        b, names = self.problem.bounds, self.problem.robot.state_names
+        out = [
+            f"{n} = {v:.4g} outside [{lo:.4g}, {hi:.4g}]"
+            for n, v, lo, hi in zip(names, x0, b.x_lower, b.x_upper, strict=True)
+            if not lo <= v <= hi
+        ]
+        return f" (state {'; '.join(out)})" if out else ""
 
     def _fallback(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
         b = self.problem.bounds

@@ -13,6 +13,7 @@ and solved at every control step. Variables are ordered stage by stage
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -364,6 +365,17 @@ class Transcription:
         self.index_x = k + np.arange(nx)
         self.index_v = k + nx + np.arange(nx)
         self.index_u = k[:N] + nz + np.arange(nx)
+        # the multipliers of the next control step, predicted: stage k's from stage k+1
+        # (``lam[shift]``); the last stage's, and rows whose stage differs in shape, stay
+        nw = self.w.numel()
+        self.shift_w = np.arange(nw) + s
+        self.shift_w[self.shift_w >= nw] -= s
+        self.shift_g = np.arange(len(self.g_stage))
+        rows = np.asarray(self.g_stage, dtype=int)
+        by_stage = [np.flatnonzero(rows == j) for j in range(N + 1)]
+        for a, b in itertools.pairwise(by_stage):
+            if len(a) == len(b):
+                self.shift_g[a] = b
 
     def use_stage_costs(self, f: ca.Function) -> None:
         """Evaluate ``stage_costs`` (and ``costs``) with ``f``, e.g. its compiled twin."""

@@ -38,10 +38,11 @@ from aeromanip.config import (
 )
 from aeromanip.constraints import Bounds, Clearance
 from aeromanip.errors import ConfigError
-from aeromanip.ocp import Problem
+from aeromanip.ocp import MODES, Problem
 from aeromanip.references import Reference, reference_from_table
 from aeromanip.robot.loader import robot_from_table
 from aeromanip.robot.spec import RobotSpec
+from aeromanip.solvers import BACKENDS
 from aeromanip.tasks import (
     CogAlignment,
     CogVelocity,
@@ -110,6 +111,9 @@ def expand_variants(
 ) -> dict[str, dict[str, Any]]:
     """Apply ``--set`` overrides, then split into variants: {variant name or "": data}."""
     data = copy.deepcopy(data)
+    controller = data.get("controller")
+    if isinstance(controller, dict):  # free-form: --set controller.solver_options.KEY=...
+        controller.setdefault("solver_options", {})
     for text in overrides:
         path, value = parse_override(text)
         apply_override(data, path, value, f"--set {text}")
@@ -139,7 +143,9 @@ def _robot(t: Table, base_dir: Path) -> RobotSpec:
         path = resolve_toml(
             base_dir / p if p.suffix == ".toml" else raw, "aeromanip.robots", "robot"
         )
-        return robot_from_table(t.sub("robot", load_toml(path)), base_dir=path.parent)
+        return robot_from_table(
+            t.sub("robot", load_toml(path)), base_dir=path.parent, source=path
+        )
     return robot_from_table(t.table("robot"), base_dir=base_dir)
 
 
@@ -178,14 +184,14 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
     ct = t.table("controller")
     horizon, dt = ct.int("horizon", minimum=1), ct.float("dt")
     strategy = ct.str("strategy", "weighted", choices=("weighted", "hierarchical"))
-    backend = ct.str("backend", "ipopt", choices=("ipopt", "fatrop"))
+    backend = ct.str("backend", "ipopt", choices=BACKENDS)
     budget = ct.raw("time_budget", None)
     budget = None if budget is None else ct.float("time_budget")
     hierarchy = {}
     if strategy == "hierarchical" or ct.has("hierarchy"):
         ht = ct.table("hierarchy", {})
         hierarchy = {
-            "mode": ht.str("mode", "stagewise", choices=("stagewise", "total")),
+            "mode": ht.str("mode", "stagewise", choices=MODES),
             "rel_tol": ht.float("rel_tol", 1e-3),
             "abs_tol": ht.float("abs_tol", 1e-6),
         }

@@ -110,6 +110,12 @@ class NlpBackend:
             self.solver = ca.nlpsol(f"nmpc_{name}", name, nlp, opts)
         except RuntimeError as e:
             raise ConfigError(f"solver.backend: {name} could not be set up: {e}") from None
+        # fatrop does not stop on NaN at its initial point (it spins): look first
+        self._check_start = (
+            ca.Function("f_g", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])
+            if name == "fatrop"
+            else None
+        )
 
     def solve(
         self,
@@ -120,22 +126,28 @@ class NlpBackend:
         lam_g0: np.ndarray | None = None,
         lam_x0: np.ndarray | None = None,
     ) -> NlpResult:
-        """Solve from the initial guess ``w0`` (and multipliers, if given)."""
+        """Solve from the initial guess ``w0`` and, if given, the multipliers of the last
+        control step (moved a stage on here, as ``w0`` is by the caller)."""
         nx = self.tr.nx
         lbw, ubw = self.tr.variable_bounds(p[:nx], p[nx : 2 * nx])
         args: dict[str, Any] = {"x0": w0, "p": p, "lbx": lbw, "ubx": ubw, "lbg": lbg, "ubg": ubg}
         if lam_g0 is not None:
-            args["lam_g0"] = lam_g0
+            args["lam_g0"] = np.asarray(lam_g0)[self.tr.shift_g]
         if lam_x0 is not None:
-            args["lam_x0"] = lam_x0
+            args["lam_x0"] = np.asarray(lam_x0)[self.tr.shift_w]
         t0 = time.perf_counter()
-        try:
-            out = self.solver(**args)
-            error = ""
-        except RuntimeError as e:  # evaluation errors (NaN) end in an exception
-            out, error = None, str(e).splitlines()[-1] if str(e) else "solver error"
+        out, error, stats = None, "", {}
+        if self._check_start is not None and not all(
+            np.isfinite(np.asarray(v, dtype=float)).all() for v in self._check_start(w0, p)
+        ):
+            error = "Invalid_Number_Detected: cost or constraints not finite at the initial guess"
+        else:
+            try:
+                out = self.solver(**args)
+            except RuntimeError as e:  # evaluation errors (NaN) end in an exception
+                error = str(e).splitlines()[-1] if str(e) else "solver error"
+            stats = self.solver.stats()
         elapsed = time.perf_counter() - t0
-        stats = self.solver.stats()
         if out is None:
             n = self.tr.w.numel()
             return NlpResult(
@@ -156,10 +168,19 @@ class NlpBackend:
             lam_x=np.asarray(out["lam_x"]).ravel(),
             f=float(out["f"]),
             success=ok,
-            status=str(stats.get("return_status", "unknown")),
+            status=_status_text(stats),
             iterations=int(stats.get("iter_count", -1)),
             solve_time_s=elapsed,
         )
+
+
+def _status_text(stats: Mapping[str, Any]) -> str:
+    """The solver's return status as text (fatrop reports a number: add CasADi's name)."""
+    status = stats.get("return_status", "unknown")
+    if isinstance(status, str):
+        return status
+    unified = stats.get("unified_return_status", "SOLVER_RET_UNKNOWN")
+    return f"{unified} (code {status})"
 
 
 def make_backend(

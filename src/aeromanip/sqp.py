@@ -7,8 +7,11 @@ How it is built, and why:
   that needs no second derivatives; the gradient ``2 J^T R`` is exact, so the fixed points
   are the NLP's KKT points (the optimum IPOPT finds). Where residuals are large (a
   reference faster than the velocity bounds allow) Gauss-Newton converges slowly or
-  zig-zags: with ``hessian="auto"`` a solve switches to the exact Hessian of ``f``
-  (eigenvalues reflected if indefinite) at its first shortened step or 7th iteration.
+  zig-zags: with ``hessian="auto"`` a solve switches to the exact Hessian of ``f`` at
+  its first shortened step or 7th iteration. Where it is indefinite, a penalty on the
+  active constraints' normals makes it positive definite without changing the step on
+  that active set (Newton's convergence kept); only where that fails are the
+  eigenvalues reflected.
 * **Exact condensing.** The model ``x[k+1] = x[k] + dt u[k]``, ``v[k+1] = u[k]`` is linear,
   so the states are affine in the commands ``U``: the multiple-shooting NLP is solved in
   ``U`` alone (``N nx`` variables), the gap rows holding exactly. For N = 10 the dense QP
@@ -23,7 +26,9 @@ How it is built, and why:
 * **Globalisation:** an l1 merit function with Armijo backtracking.
 * **Stopping:** stationarity ``||grad f + A^T lam||_inf``, constraint violation and
   complementarity all ``<= tol`` (default ``1e-6``), at each new iterate with the last
-  QP's multipliers.
+  QP's multipliers; or, as IPOPT's acceptable level, stationarity ``<= acceptable_tol``
+  for ``acceptable_iter`` iterations in a row (the hierarchy's cost bounds are
+  degenerate where a higher level's optimum is ~0: convergence there is linear).
 * **Real-time iteration** (``rti=True``): one Gauss-Newton QP and a full step per call,
   from the shifted previous solution; successful if the QP is. Iterated, it converges to
   the same optimum.
@@ -49,6 +54,10 @@ from aeromanip.solvers import NlpResult
 DEFAULTS: dict[str, Any] = {
     "max_iter": 50,  # QPs per solve
     "tol": 1e-6,  # KKT tolerance (stationarity and constraint violation)
+    # as IPOPT's "acceptable level": stationarity <= acceptable_tol (the rest <= tol) for
+    # acceptable_iter iterations in a row, or at max_iter, ends a solve successfully
+    "acceptable_tol": 1e-5,
+    "acceptable_iter": 5,
     "rti": False,  # one QP per solve
     "codegen": True,  # compile the model Functions to C (cached on disk)
     # "gauss-newton", "exact" (made positive definite), or "auto": Gauss-Newton,
@@ -224,6 +233,7 @@ class SqpBackend:
         mu, it, status, ok, f = 0.0, 0, "", False, np.nan
         exact = o["hessian"] == "exact"
         max_iter = 1 if o["rti"] else int(o["max_iter"])
+        acceptable = 0  # iterations in a row at the acceptable level
         while True:
             R, J, gc, A, Jh = self.data(Uv, p)
             J = J.reshape(self.nr, self.nU, order="F")
@@ -234,20 +244,25 @@ class SqpBackend:
                 status = "Invalid_Number_Detected"
                 break
             viol = 0.0 if o["rti"] else _violation(gc, lbc, ubc)
+            stat = np.inf
             if not o["rti"] and (it > 0 or lam_g0 is not None) and viol <= o["tol"]:
-                stat = np.abs(grad + A.T @ lam_c + lam_u).max(initial=0.0)
                 if (
-                    stat <= o["tol"]
-                    and _complementarity(gc, lbc, ubc, lam_c) <= o["tol"]
+                    _complementarity(gc, lbc, ubc, lam_c) <= o["tol"]
                     and _complementarity(Uv, self.lbU, self.ubU, lam_u) <= o["tol"]
                 ):
+                    stat = np.abs(grad + A.T @ lam_c + lam_u).max(initial=0.0)
+                if stat <= o["tol"]:
                     ok, status = True, "Solve_Succeeded"
                     break
+            acceptable = acceptable + 1 if stat <= o["acceptable_tol"] else 0
+            if acceptable >= o["acceptable_iter"] or (it >= max_iter and acceptable):
+                ok, status = True, "Solved_To_Acceptable_Level"
+                break
             if it >= max_iter:
                 status = "Maximum_Iterations_Exceeded"
                 break
             Hf = self.hess(Uv, p)[0] if (exact and self.hess is not None) else None
-            H = self._hessian(J, Jh, Hf, lam_c)
+            H = self._hessian(J, Jh, Hf, lam_c, lam_u, A)
             H.flat[:: self.nU + 1] += reg
             qp = self.qp.solve(H, grad, A, lbc - gc, ubc - gc, self.lbU - Uv, self.ubU - Uv)
             it += 1
@@ -272,11 +287,23 @@ class SqpBackend:
         return NlpResult(w, lam_g, lam_x, f, ok, status, it, time.perf_counter() - t0)
 
     def _hessian(
-        self, J: np.ndarray, Jh: np.ndarray, Hf: np.ndarray | None, lam_c: np.ndarray
+        self,
+        J: np.ndarray,
+        Jh: np.ndarray,
+        Hf: np.ndarray | None,
+        lam_c: np.ndarray,
+        lam_u: np.ndarray,
+        A: np.ndarray,
     ) -> np.ndarray:
-        """The objective's Gauss-Newton Hessian, or its exact one ``Hf`` (if given) with its
-        eigenvalues reflected (``|lambda|``, floored) if indefinite; plus the Gauss-Newton
-        curvature of the hierarchy rows."""
+        """The objective's Gauss-Newton Hessian, or its exact one ``Hf`` (if given) made
+        positive definite; plus the Gauss-Newton curvature of the hierarchy rows.
+
+        At a constrained minimum the full-space Hessian may be indefinite along directions
+        the active constraints block. Adding ``rho C'C`` (``C``: the active rows and
+        bounds) makes it positive definite without changing the QP's step on that active
+        set, so Newton's fast convergence is kept; only where that fails (negative
+        curvature on the constraints' null space too) are the eigenvalues reflected.
+        """
         Hh = None
         if self.nh:
             lam_h = np.maximum(lam_c[self.hier_elem_row], 0.0)
@@ -286,13 +313,7 @@ class SqpBackend:
             H = Hf.reshape(self.nU, self.nU, order="F").copy()
             if Hh is not None:
                 H += Hh
-            try:
-                np.linalg.cholesky(H)
-            except np.linalg.LinAlgError:
-                lam, V = np.linalg.eigh(H)
-                lam = np.maximum(np.abs(lam), 1e-6 * max(np.abs(lam).max(), 1e-3))
-                H = (V * lam) @ V.T
-            return H
+            return _convexified(H, A[lam_c != 0.0], np.flatnonzero(lam_u != 0.0))
         H = J.T @ J
         H *= 2.0
         if Hh is not None:
@@ -321,6 +342,35 @@ class SqpBackend:
             if phi <= phi0 + 1e-4 * alpha * min(slope, 0.0) or alpha < 1e-3:
                 return alpha
             alpha *= 0.5
+
+
+def _is_positive_definite(H: np.ndarray) -> bool:
+    try:
+        np.linalg.cholesky(H)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def _convexified(H: np.ndarray, C: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+    """``H`` if positive definite; else ``H + rho C'C`` (plus ``rho`` on the ``fixed``
+    variables' diagonal) for the smallest ``rho`` in a few decades that makes it so; else
+    ``H`` with its eigenvalues reflected (``|lambda|``, floored)."""
+    if _is_positive_definite(H):
+        return H
+    if C.shape[0] or fixed.size:
+        scale = max(float(np.abs(np.diag(H)).max()), 1e-8)
+        norms = np.concatenate([np.einsum("ij,ij->i", C, C), np.ones(fixed.size)])
+        base = scale / max(float(norms.mean()), 1e-12)
+        CtC = C.T @ C
+        CtC[fixed, fixed] += 1.0
+        for rho in base * 10.0 ** np.arange(0, 5):
+            Hc = H + rho * CtC
+            if _is_positive_definite(Hc):
+                return Hc
+    lam, V = np.linalg.eigh(H)
+    lam = np.maximum(np.abs(lam), 1e-6 * max(np.abs(lam).max(), 1e-3))
+    return (V * lam) @ V.T
 
 
 def _violation(g: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> float:

@@ -108,8 +108,9 @@ class Weighted:
         rep = LevelReport(
             0, float(C), 0.0, res.success, res.status, res.iterations, res.solve_time_s
         )
+        status = "ok" if res.success else res.status  # the solver's own is in the report
         return StrategyResult(
-            res.w, st.tr, res.success, res.status, res.iterations, res.solve_time_s, [rep], [res.w]
+            res.w, st.tr, res.success, status, res.iterations, res.solve_time_s, [rep], [res.w]
         )
 
 
@@ -122,7 +123,9 @@ def _solve_stage(
         lam_g, lam_x = st.warm.lam_g, st.warm.lam_x
     res = st.backend.solve(w0, p, lbg, ubg, lam_g, lam_x)
     if not res.success and lam_g is not None:  # stale multipliers can mislead: retry cold
-        cold = st.backend.solve(w0, p, lbg, ubg)
+        # out of iterations on the way somewhere: go on from there, else start again
+        go_on = res.status == "Maximum_Iterations_Exceeded" and bool(np.isfinite(res.w).all())
+        cold = st.backend.solve(res.w if go_on else w0, p, lbg, ubg)
         cold.solve_time_s += res.solve_time_s
         cold.iterations += res.iterations
         res = cold
