@@ -8,19 +8,14 @@ from aeromanip.runlog import RunLog, read_summary
 from aeromanip.runner import run_scenarios
 from aeromanip.scenario import load_scenarios
 
-FLIGHT = ["sim='physics'", "duration=60"]
-TRACKING_ONLY = ["controller.strategy='weighted'", "tasks.cog.weight=0.0"]
-
 
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory):
-    out = {}
-    for name, extra in (("hierarchical", []), ("tracking-only", TRACKING_ONLY)):
-        d = tmp_path_factory.mktemp(name)
-        run_scenarios(load_scenarios("flight", FLIGHT + extra), d, progress=False,
-                      figures=False)
-        out[name] = d
-    return out
+    """The built-in flight-cog comparison (the flight with and without the CoG level)."""
+    d = tmp_path_factory.mktemp("flight-cog")
+    run_scenarios(load_scenarios("flight-cog", ["duration=60"]), d, progress=False,
+                  figures=False)
+    return {name: d / name for name in ("hierarchical", "tracking-only")}
 
 
 def test_physics_log_has_tilt_motors_and_arm_torque(flights):
@@ -42,12 +37,14 @@ def test_cog_alignment_lowers_tilt_and_arm_torque_at_equal_tracking(flights):
     # equal tracking: within 1 mm RMS of each other (both physical, tilt included)
     assert abs(hier["ee_rmse_m"] - only["ee_rmse_m"]) < 1e-3
     # the rotors do less differential work to hold the arm's moment
-    spread = {}
-    for name, d in flights.items():
-        log = RunLog.load(d)
-        m = np.column_stack([log.column(f"motor_{i}") for i in range(1, 5)])
-        spread[name] = float(np.mean(m.max(axis=1) - m.min(axis=1)))
-    assert spread["hierarchical"] < 0.5 * spread["tracking-only"]
+    assert hier["rotor_spread_mean_n"] < 0.5 * only["rotor_spread_mean_n"]
+    log = RunLog.load(flights["tracking-only"])
+    m = np.column_stack([log.column(f"motor_{i}") for i in range(1, 5)])
+    assert only["rotor_spread_mean_n"] == pytest.approx(np.mean(m.max(1) - m.min(1)))
+    # both variants' summaries side by side in the scenario's directory
+    both = read_summary(flights["hierarchical"].parent / "summary.json")
+    for key in ("ee_rmse_m", "roll_pitch_mean_deg", "arm_torque_mean_nm", "rotor_spread_mean_n"):
+        assert both["hierarchical"][key] == hier[key] and both["tracking-only"][key] == only[key]
 
 
 def test_flight_in_physics_keeps_joints_clearance_and_box(flights):

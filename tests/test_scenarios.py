@@ -160,3 +160,21 @@ def test_config_toml_reproduces_the_run(tmp_path):
     a, b = RunLog.load(first), RunLog.load(again)
     for col in ("x", "y", "z", "q1", "q2", "q3", "u_x", "ee_x", "ref_x"):
         np.testing.assert_array_equal(a.column(col), b.column(col))
+
+
+def test_a_scenario_extends_another_key_by_key(tmp_path):
+    mine = tmp_path / "mine.toml"
+    mine.write_text('extends = "flight"\nname = "mine"\nduration = 12.0\n'
+                    "[controller]\nhorizon = 6\n")
+    sc = load_scenarios(mine)[""]
+    flight = load_scenarios("flight")[""]
+    assert (sc.name, sc.duration, sc.problem.horizon) == ("mine", 12.0, 6)
+    assert sc.problem.dt == flight.problem.dt and sc.strategy == flight.strategy
+    np.testing.assert_array_equal(sc.problem.bounds.x_upper, flight.problem.bounds.x_upper)
+    # a cycle is a clear error, not a recursion
+    (tmp_path / "a.toml").write_text('extends = "b.toml"\n')
+    (tmp_path / "b.toml").write_text('extends = "a.toml"\n')
+    from aeromanip.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="extends: a cycle"):
+        load_scenarios(tmp_path / "a.toml")

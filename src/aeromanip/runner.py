@@ -222,6 +222,9 @@ def run_scenarios(
         summaries[variant] = write_run(sc, log, d, figures)
         summaries[variant]["out_dir"] = str(d)
         logs[variant or sc.name] = log
-    if figures and len(logs) > 1:
-        plot_comparison(logs, out_dir / "figures")
+    if len(logs) > 1:  # every variant's summary side by side
+        write_summary(out_dir, {v: {k: x for k, x in s.items() if k != "out_dir"}
+                                for v, s in summaries.items()})
+        if figures:
+            plot_comparison(logs, out_dir / "figures")
     return summaries

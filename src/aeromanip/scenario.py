@@ -90,10 +90,27 @@ def builtin_scenarios() -> dict[str, str]:
     return builtin_descriptions("aeromanip.scenarios")
 
 
-def scenario_source(name_or_path: str | Path) -> tuple[dict[str, Any], Path]:
-    """The raw TOML table of a built-in scenario name or a file, and its directory."""
+def scenario_source(name_or_path: str | Path, _seen: tuple[Path, ...] = ()) -> tuple[
+    dict[str, Any], Path
+]:
+    """The raw TOML table of a built-in scenario name or a file, and its directory.
+
+    A scenario may start from another: ``extends = "flight"`` (a built-in name or a file,
+    relative to this one) takes that scenario's table and overrides it key by key.
+    """
     path = resolve_toml(name_or_path, "aeromanip.scenarios", "scenario")
-    return load_toml(path), path.parent
+    data = load_toml(path)
+    base = data.pop("extends", None)
+    if base is None:
+        return data, path.parent
+    if not isinstance(base, str):
+        raise ConfigError(f"{path}: extends: expected a scenario name or file, got {base!r}")
+    if path in _seen:
+        raise ConfigError(f"{path}: extends: a cycle ({' -> '.join(map(str, _seen))})")
+    target = path.parent / base if base.endswith(".toml") else base
+    parent, _ = scenario_source(target, (*_seen, path))
+    parent.pop("variants", None)  # variants are a scenario's own
+    return _merge(parent, data), path.parent
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
