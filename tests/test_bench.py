@@ -28,8 +28,10 @@ def test_shadow_ipopt_agrees_step_by_step(short_run):
     # nominal flight: IPOPT from the same guess gives the same command (1e-4) at every step
     assert weighted["shadow_steps"] == weighted["steps"] == 40
     assert weighted["shadow_other_optimum_steps"] == 0
-    # binding bounds make the NLP nonconvex: rarely, the solvers pick different optima...
-    assert constrained["shadow_other_optimum_steps"] <= 4
+    # binding bounds make the NLP nonconvex: at some steps the two solvers pick different
+    # local optima from the same guess, the SQP's not always the worse one...
+    assert constrained["shadow_other_optimum_steps"] <= 0.25 * constrained["steps"]
+    assert constrained["shadow_other_optimum_ipopt_cost_higher"] >= 1
     # ...but IPOPT restarted at each SQP answer stays there: each is a local optimum
     for r in (weighted, constrained):
         assert r["shadow_certified_max_du"] < 1e-4  # rad/s or m/s

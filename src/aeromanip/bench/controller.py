@@ -14,7 +14,7 @@ of their applied commands from it.
 * ``weighted``: the weighted strategy; ``hierarchical``: 2 levels (tracking, then CoG),
   stage-wise cost bounds (the paper's form); ``residual``: the same hierarchy with
   ``mode = "residual"`` (residual boxes: a stricter problem, see ``strategies``);
-  ``constrained``: weighted, with a reference 12x faster so that velocity bounds bind;
+  ``constrained``: weighted, with a reference 25x faster so that velocity bounds bind;
   ``rti``: weighted, one SQP iteration per step. Each with the ``sqp`` backend and, as
   the reference answer, with IPOPT warm-started and converged tightly (``-ipopt``,
   ``tol = 1e-10``: at its default tolerance IPOPT's own answer moves by ~3e-4 rad/s).
@@ -37,7 +37,7 @@ from aeromanip.ocp import Problem, Transcription
 from aeromanip.scenario import Scenario, load_scenarios
 from aeromanip.solvers import make_backend
 
-FAST = 12.0  # reference speed-up of the constrained variant
+FAST = 25.0  # reference speed-up of the constrained variant: velocity bounds bind
 FLIGHT_FREQ = (0.0125, 0.0091, 0.0067)  # Hz, flight.toml's Lissajous frequencies
 
 REF_OPTIONS = {"ipopt.tol": 1e-10}  # the reference answers: IPOPT converged tightly
