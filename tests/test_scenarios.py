@@ -48,6 +48,10 @@ def test_planar_small_phase_by_arm_big_phase_by_platform(planar):
     assert small["arm"] > 0.5, small
     assert big["platform"] > 0.5, big
     s = read_summary(planar / "cond-default" / "summary.json")
+    # the summary carries the same shares, per reference phase
+    assert [p["t0_s"] for p in s["phases"]] == [0.0, 20.0]
+    assert s["phases"][0]["arm_share"] == pytest.approx(small["arm"])
+    assert s["phases"][1]["platform_share"] == pytest.approx(big["platform"])
     assert s["ee_rmse_m"] < 0.01 and s["solver_failures"] == 0
     assert s["min_clearance_m"] >= 0.1 - 1e-6
 

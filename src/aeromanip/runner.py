@@ -20,10 +20,10 @@ import tomli_w
 
 from aeromanip.controller import Controller
 from aeromanip.plots import plot_comparison, plot_run
-from aeromanip.references import Waypoints
+from aeromanip.references import SinusoidPhases, Waypoints
 from aeromanip.robot.spec import PLATFORM_DOFS
 from aeromanip.robot.urdf import robot_to_urdf
-from aeromanip.runlog import RunLog, write_summary
+from aeromanip.runlog import RunLog, motion_share, write_summary
 from aeromanip.scenario import Scenario
 from aeromanip.sim.base import Simulator
 from aeromanip.sim.kinematic import KinematicSimulator
@@ -187,6 +187,18 @@ def write_run(sc: Scenario, log: RunLog, out_dir: Path, figures: bool = True) ->
         (out_dir / "robot.xml").write_text(make_simulator(sc).to_xml())
     log.save(out_dir)
     summary = log.summary()
+    if isinstance(sc.reference, SinusoidPhases):  # who carries each phase (Fig. 3's claim)
+        ref = sc.reference
+        ends = [*ref.phase_starts[1:], ref.duration]
+        summary["phases"] = [
+            {"t0_s": float(t0), "t1_s": float(t1)}
+            | {
+                f"{k}_share": v
+                for k, v in motion_share(log, t0, t1, ref.direction).items()
+                if k in ("arm", "platform")
+            }
+            for t0, t1 in zip(ref.phase_starts, ends, strict=True)
+        ]
     summary.update(
         {
             "scenario": sc.name,
@@ -223,8 +235,10 @@ def run_scenarios(
         summaries[variant]["out_dir"] = str(d)
         logs[variant or sc.name] = log
     if len(logs) > 1:  # every variant's summary side by side
-        write_summary(out_dir, {v: {k: x for k, x in s.items() if k != "out_dir"}
-                                for v, s in summaries.items()})
+        write_summary(
+            out_dir,
+            {v: {k: x for k, x in s.items() if k != "out_dir"} for v, s in summaries.items()},
+        )
         if figures:
             plot_comparison(logs, out_dir / "figures")
     return summaries
