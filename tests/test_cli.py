@@ -48,8 +48,8 @@ def test_malformed_toml_is_a_clear_error(tmp_path, capsys):
 def test_list_names_scenarios_and_robots(capsys):
     assert main(["list"]) == 0
     out = capsys.readouterr().out
-    for name in ("planar", "waypoints", "waypoints-unbounded", "flight", "x8-3dof",
-                 "planar-2dof"):
+    for name in ("planar", "waypoints", "waypoints-unbounded", "flight", "flight-cog",
+                 "x8-3dof", "planar-2dof"):
         assert name in out
 
 
@@ -58,6 +58,7 @@ def test_run_from_the_console_prints_summary_and_outputs(tmp_path):
     proc = run_cli("run", "flight", "--set", "duration=5", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     assert "EE RMSE" in proc.stdout and str(out) in proc.stdout
+    assert "tilt deg" in proc.stdout  # flight flies in physics: tilt and arm torque shown
     assert (out / "summary.json").is_file() and (out / "figures" / "ee_tracking.png").is_file()
     proc = run_cli("run", "nosuch")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr

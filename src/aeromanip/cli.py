@@ -39,14 +39,21 @@ SUMMARY_COLUMNS = (
     ("solve_ms_median", "solve ms", "{:.1f}"),
     ("solver_failures", "fails", "{:d}"),
 )
+PHYSICS_COLUMNS = (  # shown when a run has them
+    ("roll_pitch_mean_deg", "tilt deg", "{:.3f}"),
+    ("arm_torque_mean_nm", "arm N m", "{:.4f}"),
+)
 
 
 def _format_summary(summaries: dict[str, dict]) -> str:
-    head = f"{'run':<22}" + "".join(f"{h:>12}" for _, h, _ in SUMMARY_COLUMNS)
+    columns = SUMMARY_COLUMNS + tuple(
+        c for c in PHYSICS_COLUMNS if any(c[0] in s for s in summaries.values())
+    )
+    head = f"{'run':<22}" + "".join(f"{h:>12}" for _, h, _ in columns)
     lines = [head]
     for variant, s in summaries.items():
         cells = []
-        for key, _, fmt in SUMMARY_COLUMNS:
+        for key, _, fmt in columns:
             v = s.get(key)
             cells.append(f"{'-' if v is None else fmt.format(v):>12}")
         lines.append(f"{(variant or s['scenario']):<22}" + "".join(cells))
