@@ -62,3 +62,14 @@ def test_run_from_the_console_prints_summary_and_outputs(tmp_path):
     assert (out / "summary.json").is_file() and (out / "figures" / "ee_tracking.png").is_file()
     proc = run_cli("run", "nosuch")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
+
+
+def test_replot_keeps_the_variants_in_run_order(tmp_path):
+    from aeromanip.cli import _run_order
+
+    (tmp_path / "summary.json").write_text(
+        '{"cond-off": {"x": 1}, "cond-default": {"x": 2}, "cond-high": {"x": 3}}')
+    assert _run_order(tmp_path) == ["cond-off", "cond-default", "cond-high"]
+    (tmp_path / "summary.json").write_text('{"steps": 3}')  # a single run's summary
+    assert _run_order(tmp_path) == []
+    assert _run_order(tmp_path / "missing") == []

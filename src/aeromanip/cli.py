@@ -76,6 +76,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_order(root: Path) -> list[str]:
+    """The variant names in the order ``DIR/summary.json`` lists them (empty if none)."""
+    try:
+        data = json.loads((root / "summary.json").read_text())
+    except (OSError, ValueError):
+        return []
+    return [k for k, v in data.items() if isinstance(v, dict)] if isinstance(data, dict) else []
+
+
 def _cmd_plot(args: argparse.Namespace) -> int:
     from aeromanip.plots import plot_comparison, plot_run
     from aeromanip.runlog import LOG_FILE, RunLog
@@ -85,6 +94,8 @@ def _cmd_plot(args: argparse.Namespace) -> int:
         paths = plot_run(RunLog.load(root), root / "figures")
     else:
         runs = sorted(p.parent for p in root.glob(f"*/{LOG_FILE}"))
+        order = _run_order(root)  # the variants' order in the run, where it was saved
+        runs.sort(key=lambda d: order.index(d.name) if d.name in order else len(order))
         if not runs:
             raise ConfigError(f"{root}: no {LOG_FILE} here nor in its sub-directories")
         logs = {}
