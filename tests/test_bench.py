@@ -27,6 +27,7 @@ def test_shadow_ipopt_agrees_step_by_step(short_run):
     weighted, constrained = (short_run["variants"][n] for n in ("weighted", "constrained"))
     # nominal flight: IPOPT from the same guess gives the same command (1e-4) at every step
     assert weighted["shadow_steps"] == weighted["steps"] == 40
+    assert weighted["shadow_ipopt_failures"] == constrained["shadow_ipopt_failures"] == 0
     assert weighted["shadow_other_optimum_steps"] == 0
     # binding bounds make the NLP nonconvex: at some steps the two solvers pick different
     # local optima from the same guess, the SQP's not always the worse one...

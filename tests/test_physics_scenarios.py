@@ -24,6 +24,10 @@ def test_physics_log_has_tilt_motors_and_arm_torque(flights):
         assert col in log, col
     s = read_summary(flights["hierarchical"] / "summary.json")
     assert s["roll_pitch_mean_deg"] >= 0.0 and s["arm_torque_mean_nm"] >= 0.0
+    # roll and pitch are the attitude at each row's time, like the state: level at t = 0
+    # (reset to hover); motor thrusts and arm torque are means over the row's period
+    assert log.column("roll")[0] == 0.0 and log.column("pitch")[0] == 0.0
+    assert np.abs(log.column("roll")[1:]).max() > 0.0
     # the model flown is in the run directory, loadable by MuJoCo (and its viewer)
     model = mujoco.MjModel.from_xml_path(str(flights["hierarchical"] / "robot.xml"))
     assert model.nu == 4 + 3  # rotors + arm servos

@@ -1,5 +1,7 @@
 """The paper's case studies end to end (shortened where the claim allows), run outputs."""
 
+from importlib import resources
+
 import numpy as np
 import pytest
 
@@ -175,6 +177,18 @@ def test_a_scenario_extends_another_key_by_key(tmp_path):
     assert (sc.name, sc.duration, sc.problem.horizon) == ("mine", 12.0, 6)
     assert sc.problem.dt == flight.problem.dt and sc.strategy == flight.strategy
     np.testing.assert_array_equal(sc.problem.bounds.x_upper, flight.problem.bounds.x_upper)
+    # a parent's relative files are found next to the parent, not next to the child
+    parent_dir, child_dir = tmp_path / "p", tmp_path / "c"
+    parent_dir.mkdir()
+    child_dir.mkdir()
+    robot_toml = resources.files("aeromanip") / "robots" / "x8-3dof.toml"
+    (parent_dir / "myrobot.toml").write_text(robot_toml.read_text())
+    (parent_dir / "parent.toml").write_text(
+        'extends = "flight"\nname = "parent"\nrobot = "myrobot.toml"\n')
+    (child_dir / "child.toml").write_text(
+        'extends = "../p/parent.toml"\nname = "child"\nduration = 3.0\n')
+    child = load_scenarios(child_dir / "child.toml")[""]
+    assert child.robot.name == flight.robot.name and child.duration == 3.0
     # a cycle is a clear error, not a recursion
     (tmp_path / "a.toml").write_text('extends = "b.toml"\n')
     (tmp_path / "b.toml").write_text('extends = "a.toml"\n')

@@ -241,10 +241,44 @@ def test_convexified_hessian_keeps_the_step_on_the_active_set():
     assert _convexified(P, C, np.zeros(0, dtype=int)) is P  # already convex: unchanged
 
 
-def test_acceptable_level_ends_a_solve_that_cannot_reach_tol():
-    pb = make_problem()
-    ref = two_steps(pb, "weighted", "ipopt")
+@pytest.mark.parametrize("strategy", ["weighted", "hierarchical"])
+def test_acceptable_level_ends_a_solve_that_cannot_reach_tol(strategy):
+    """With tol out of reach, the acceptable level ends each solve at IPOPT's answer
+    (hierarchical: level 1 under the degenerate stage-wise bounds it exists for)."""
+    pb = make_problem(box={"z": (0.5, 2.0)})
+    ref = two_steps(pb, strategy, "ipopt")
     opts = {**FAST, "tol": 0.0, "acceptable_tol": 1e-6, "acceptable_iter": 3}
-    cmd = two_steps(pb, "weighted", "sqp", opts)
-    assert cmd.status == "ok" and cmd.levels[0].status == "Solved_To_Acceptable_Level"
+    cmd = two_steps(pb, strategy, "sqp", opts)
+    assert cmd.status == "ok"
+    assert {lv.status for lv in cmd.levels} == {"Solved_To_Acceptable_Level"}
     np.testing.assert_allclose(cmd.plan_u, ref.plan_u, atol=1e-4)
+
+
+@pytest.mark.parametrize("mode", ["stagewise", "residual", "total"])
+def test_multiplier_shift_maps_each_row_to_its_twin_one_stage_on(mode):
+    """The NLP's and the SQP's shift maps: a row moves to the row of the same kind and
+    place one stage on (never across kinds); rows without a twin keep their place."""
+    from aeromanip.ocp import Transcription
+    from aeromanip.sqp import SqpBackend
+
+    pb = make_problem()
+    higher = [[e for e in pb.entries if e.level == 0]]
+    own = [e for e in pb.entries if e.level != 0]
+    tr = Transcription(pb, own, higher, mode)
+    kind, stage = np.array(tr.g_kind), np.array(tr.g_stage)
+    moved = tr.shift_g != np.arange(len(kind))
+    assert np.all(kind[tr.shift_g] == kind)
+    assert np.all(stage[tr.shift_g][moved] == stage[moved] + 1)
+    # every gap row but the last stage's moves on, stage 0 included
+    gaps = np.flatnonzero(kind == "gap")
+    assert np.all(moved[gaps[stage[gaps] < pb.horizon - 1]])
+    assert set(np.unique(kind[moved])) >= {"gap", "path"}
+    # variables: stage k's to stage k+1's, the last stage's stay
+    s, n = tr.stride, tr.w.numel()
+    np.testing.assert_array_equal(tr.shift_w[: n - s], np.arange(s, n)[: n - s])
+    sqp = SqpBackend(tr, FAST)
+    rows = [(tr.g_kind[r], tr.g_stage[r]) for r in sqp.keep]
+    rows += [(f"state{i % s}", i // s) for i in sqp.state_idx]
+    for r, t in enumerate(sqp.qp.shift_rows):
+        assert rows[t][0] == rows[r][0]
+        assert rows[t][1] in (rows[r][1], rows[r][1] + 1)

@@ -13,7 +13,6 @@ and solved at every control step. Variables are ordered stage by stage
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -149,6 +148,24 @@ class Problem:
         return np.hstack([np.asarray(c, dtype=float).reshape(len(times), -1) for c in cols])
 
 
+def shift_map(rows: Sequence[tuple[str, int]]) -> np.ndarray:
+    """For rows given as ``(kind, stage)``, in order: the index of each row's twin one
+    stage on (the same kind, the same place among that kind's rows of its stage), or the
+    row itself where there is none or the stage is negative (rows coupling every stage)."""
+    place: dict[tuple[str, int, int], int] = {}
+    count: dict[tuple[str, int], int] = {}
+    keys = []
+    for r, (kind, stage) in enumerate(rows):
+        j = count.get((kind, stage), 0)
+        count[(kind, stage)] = j + 1
+        keys.append((kind, stage, j))
+        place[(kind, stage, j)] = r
+    return np.array(
+        [r if st < 0 else place.get((kd, st + 1, j), r) for r, (kd, st, j) in enumerate(keys)],
+        dtype=int,
+    )
+
+
 class Transcription:
     """The multiple-shooting NLP of a ``Problem`` for one objective.
 
@@ -273,7 +290,7 @@ class Transcription:
         self.gap_rows: list[int] = []  # the rows z[k+1] = f(z[k], u[k])
         n_g = 0
 
-        def add_g(expr: ca.SX, lo: np.ndarray, hi: np.ndarray) -> list[int]:
+        def add_g(expr: ca.SX, lo: np.ndarray, hi: np.ndarray, kind: str) -> list[int]:
             nonlocal n_g
             g.append(expr)
             lbg.append(np.asarray(lo, dtype=float).ravel())
@@ -281,12 +298,15 @@ class Transcription:
             rows = list(range(n_g, n_g + expr.numel()))
             n_g += expr.numel()
             self.g_stage += [stage_of_rows] * len(rows)
+            self.g_kind += [kind] * len(rows)
             return rows
 
         lo_s_v = np.concatenate(lo_s) if lo_s else np.zeros(0)
         hi_s_v = np.concatenate(hi_s) if hi_s else np.zeros(0)
-        #: the stage each row of g belongs to (-1: couples every stage)
+        #: the stage each row of g belongs to (-1: couples every stage), and its kind:
+        #: "gap" (z[k+1] = f(z[k], u[k])), "path", "terminal", "hier<j>" (level j's bound)
         self.g_stage: list[int] = []
+        self.g_kind: list[str] = []
         stage_of_rows = 0
         for k in range(N + 1):
             stage_of_rows = k
@@ -314,22 +334,22 @@ class Transcription:
             if k < N:  # gap-closing rows first in each stage (what fatrop detects)
                 x_next = Z[k][:nx] + dt * U[k]
                 self.gap_rows += add_g(
-                    Z[k + 1] - ca.vertcat(x_next, U[k]), np.zeros(nz), np.zeros(nz)
+                    Z[k + 1] - ca.vertcat(x_next, U[k]), np.zeros(nz), np.zeros(nz), "gap"
                 )
             if k > 0 and path.numel():
                 if k < N:
-                    add_g(path, lo_s_v, hi_s_v)
+                    add_g(path, lo_s_v, hi_s_v, "path")
                 else:
-                    add_g(path, np.concatenate(lo_t), np.concatenate(hi_t))
+                    add_g(path, np.concatenate(lo_t), np.concatenate(hi_t), "terminal")
             for j in range(len(groups)):
                 if self.mode == "stagewise":
-                    rows = add_g(hier[j], [-np.inf], [np.inf])
+                    rows = add_g(hier[j], [-np.inf], [np.inf], f"hier{j}")
                     self.hier_rows[j] += rows
                     self.hier_residuals.append((rows[0], res[1 + j]))
                 elif self.mode == "residual":  # linear in the residuals: no curvature term
                     n_r = res[1 + j].numel()
                     self.hier_rows[j] += add_g(
-                        res[1 + j], -np.full(n_r, np.inf), np.full(n_r, np.inf)
+                        res[1 + j], -np.full(n_r, np.inf), np.full(n_r, np.inf), f"hier{j}"
                     )
                 else:
                     hier_sum[j] += hier[j]
@@ -338,7 +358,7 @@ class Transcription:
         if self.mode == "total":
             for j in range(len(groups)):
                 stage_of_rows = -1
-                self.hier_rows[j] = add_g(hier_sum[j], [-np.inf], [np.inf])
+                self.hier_rows[j] = add_g(hier_sum[j], [-np.inf], [np.inf], f"hier{j}")
                 self.hier_residuals.append((self.hier_rows[j][0], ca.vertcat(*res_hier[j])))
             self.stage_ng = []  # not stage-wise: the last row couples every stage
         self.w = ca.vertcat(*w)
@@ -365,17 +385,13 @@ class Transcription:
         self.index_x = k + np.arange(nx)
         self.index_v = k + nx + np.arange(nx)
         self.index_u = k[:N] + nz + np.arange(nx)
-        # the multipliers of the next control step, predicted: stage k's from stage k+1
-        # (``lam[shift]``); the last stage's, and rows whose stage differs in shape, stay
+        # the multipliers of the next control step, predicted: ``lam[shift]`` gives each
+        # row (variable) of stage k the one of the same kind and place in stage k+1; rows
+        # without such a twin (the last stage's, terminal and coupling rows) keep theirs
         nw = self.w.numel()
         self.shift_w = np.arange(nw) + s
         self.shift_w[self.shift_w >= nw] -= s
-        self.shift_g = np.arange(len(self.g_stage))
-        rows = np.asarray(self.g_stage, dtype=int)
-        by_stage = [np.flatnonzero(rows == j) for j in range(N + 1)]
-        for a, b in itertools.pairwise(by_stage):
-            if len(a) == len(b):
-                self.shift_g[a] = b
+        self.shift_g = shift_map(list(zip(self.g_kind, self.g_stage, strict=True)))
 
     def use_stage_costs(self, f: ca.Function) -> None:
         """Evaluate ``stage_costs`` (and ``costs``) with ``f``, e.g. its compiled twin."""

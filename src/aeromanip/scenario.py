@@ -108,9 +108,28 @@ def scenario_source(name_or_path: str | Path, _seen: tuple[Path, ...] = ()) -> t
     if path in _seen:
         raise ConfigError(f"{path}: extends: a cycle ({' -> '.join(map(str, _seen))})")
     target = path.parent / base if base.endswith(".toml") else base
-    parent, _ = scenario_source(target, (*_seen, path))
+    parent, parent_dir = scenario_source(target, (*_seen, path))
     parent.pop("variants", None)  # variants are a scenario's own
+    _anchor_paths(parent, parent_dir)  # its files stay where it names them
     return _merge(parent, data), path.parent
+
+
+def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
+    """Make the relative file names of a scenario table absolute against ``base_dir``:
+    ``robot`` (a TOML file), ``robot.arm.urdf`` and ``reference.file``."""
+
+    def anchor(table: Any, key: str, suffixes: tuple[str, ...] = ()) -> None:
+        v = table.get(key) if isinstance(table, dict) else None
+        if isinstance(v, str) and (not suffixes or v.endswith(suffixes)):
+            p = Path(v)
+            if not p.is_absolute():
+                table[key] = str(base_dir / p)
+
+    anchor(data, "robot", (".toml",))
+    robot = data.get("robot")
+    if isinstance(robot, dict):
+        anchor(robot.get("arm"), "urdf")
+    anchor(data.get("reference"), "file")
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:

@@ -3,7 +3,7 @@
 * ``ipopt``: the robust reference (interior point, exact Hessian, MUMPS).
 * ``fatrop``: a structure-exploiting interior-point method for optimal control
   (Riccati-based linear algebra over the stage-wise variable/constraint order).
-* ``sqp``: Gauss-Newton SQP with exact condensing and qpOASES, compiled model Functions
+* ``sqp``: Gauss-Newton SQP with exact condensing and DAQP (or qpOASES), compiled model Functions
   (``aeromanip.sqp``); ``sqp-rti``: the same, one QP per call (real-time iteration).
 
 ``make_backend`` picks one by name.
@@ -50,8 +50,10 @@ class Backend(Protocol):
         ubg: np.ndarray,
         lam_g0: np.ndarray | None = None,
         lam_x0: np.ndarray | None = None,
+        shift: bool = True,
     ) -> NlpResult:
-        """Solve from a primal guess (and multipliers)."""
+        """Solve from a primal guess and the last control step's multipliers (moved a
+        stage on unless ``shift`` is False)."""
         ...
 
 
@@ -125,16 +127,18 @@ class NlpBackend:
         ubg: np.ndarray,
         lam_g0: np.ndarray | None = None,
         lam_x0: np.ndarray | None = None,
+        shift: bool = True,
     ) -> NlpResult:
         """Solve from the initial guess ``w0`` and, if given, the multipliers of the last
-        control step (moved a stage on here, as ``w0`` is by the caller)."""
+        control step (moved a stage on here, as ``w0`` is by the caller; ``shift=False``:
+        multipliers of this very step, used as they are)."""
         nx = self.tr.nx
         lbw, ubw = self.tr.variable_bounds(p[:nx], p[nx : 2 * nx])
         args: dict[str, Any] = {"x0": w0, "p": p, "lbx": lbw, "ubx": ubw, "lbg": lbg, "ubg": ubg}
         if lam_g0 is not None:
-            args["lam_g0"] = np.asarray(lam_g0)[self.tr.shift_g]
+            args["lam_g0"] = np.asarray(lam_g0)[self.tr.shift_g] if shift else lam_g0
         if lam_x0 is not None:
-            args["lam_x0"] = np.asarray(lam_x0)[self.tr.shift_w]
+            args["lam_x0"] = np.asarray(lam_x0)[self.tr.shift_w] if shift else lam_x0
         t0 = time.perf_counter()
         out, error, stats = None, "", {}
         if self._check_start is not None and not all(

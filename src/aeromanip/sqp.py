@@ -26,9 +26,10 @@ How it is built, and why:
 * **Globalisation:** an l1 merit function with Armijo backtracking.
 * **Stopping:** stationarity ``||grad f + A^T lam||_inf``, constraint violation and
   complementarity all ``<= tol`` (default ``1e-6``), at each new iterate with the last
-  QP's multipliers; or, as IPOPT's acceptable level, stationarity ``<= acceptable_tol``
-  for ``acceptable_iter`` iterations in a row (the hierarchy's cost bounds are
-  degenerate where a higher level's optimum is ~0: convergence there is linear).
+  QP's multipliers; or, as IPOPT's acceptable level, stationarity and complementarity
+  ``<= acceptable_tol`` (violation ``<= constr_viol_tol``) for ``acceptable_iter``
+  iterations in a row (the hierarchy's cost bounds are degenerate where a higher
+  level's optimum is ~0: convergence there is linear).
 * **Real-time iteration** (``rti=True``): one Gauss-Newton QP and a full step per call,
   from the shifted previous solution; successful if the QP is. Iterated, it converges to
   the same optimum.
@@ -47,16 +48,18 @@ import numpy as np
 
 from aeromanip.codegen import Buffered, compiled_all, limit_blas_threads
 from aeromanip.errors import ConfigError
-from aeromanip.ocp import Transcription
+from aeromanip.ocp import Transcription, shift_map
 from aeromanip.qp import DenseQp
 from aeromanip.solvers import NlpResult
 
 DEFAULTS: dict[str, Any] = {
     "max_iter": 50,  # QPs per solve
-    "tol": 1e-6,  # KKT tolerance (stationarity and constraint violation)
-    # as IPOPT's "acceptable level": stationarity <= acceptable_tol (the rest <= tol) for
-    # acceptable_iter iterations in a row, or at max_iter, ends a solve successfully
+    "tol": 1e-6,  # KKT tolerance (stationarity, complementarity, constraint violation)
+    # as IPOPT's "acceptable level": stationarity and complementarity <= acceptable_tol
+    # and violation <= constr_viol_tol for acceptable_iter iterations in a row (or at
+    # max_iter) end a solve successfully
     "acceptable_tol": 1e-5,
+    "constr_viol_tol": 1e-6,
     "acceptable_iter": 5,
     "rti": False,  # one QP per solve
     "codegen": True,  # compile the model Functions to C (cached on disk)
@@ -152,21 +155,10 @@ class SqpBackend:
         self.ubU = np.tile(tr.problem.bounds.u_upper, N)
         always = np.zeros(self.nc, dtype=bool)
         always[[row_of[r] for rows in tr.hier_rows for r in rows]] = True  # bind by design
-        # which row predicts each one when the horizon moves a step on
-        stage = np.concatenate(
-            [np.asarray(tr.g_stage, dtype=int)[self.keep], self.state_idx // tr.stride]
-        )
-        kind = np.concatenate([np.zeros(self.nk, dtype=int), np.ones(len(sidx), dtype=int)])
-        pos: dict[tuple[int, int, int], int] = {}
-        count: dict[tuple[int, int], int] = {}
-        keys = []
-        for r, (kd, st) in enumerate(zip(kind, stage, strict=True)):
-            j = count.get((kd, st), 0)
-            count[(kd, st)] = j + 1
-            keys.append((kd, st, j))
-            pos[(kd, st, j)] = r
-        shift_rows = np.array(
-            [r if st < 0 else pos.get((kd, st + 1, j), r) for r, (kd, st, j) in enumerate(keys)]
+        # which row predicts each one when the horizon moves a step on (as the NLP's)
+        shift_rows = shift_map(
+            [(tr.g_kind[r], tr.g_stage[r]) for r in self.keep]
+            + [(f"state{i % tr.stride}", i // tr.stride) for i in sidx]
         )
         self.shift_vars = np.arange(nU) + nx
         self.shift_vars[self.shift_vars >= nU] -= nx  # the last command predicts itself
@@ -216,8 +208,11 @@ class SqpBackend:
         ubg: np.ndarray,
         lam_g0: np.ndarray | None = None,
         lam_x0: np.ndarray | None = None,
+        shift: bool = True,
     ) -> NlpResult:
-        """Solve from the primal guess ``w0`` (its commands are used) and multipliers."""
+        """Solve from the primal guess ``w0`` (its commands are used) and multipliers: the
+        last control step's, moved a stage on here (``shift=False``: this step's). The
+        multipliers returned leave the model rows at 0 (condensed away)."""
         t0 = time.perf_counter()
         o = self.opts
         Uv = np.asarray(w0, dtype=float)[self.u_idx].copy()
@@ -225,9 +220,11 @@ class SqpBackend:
         lbc = np.concatenate([lbg[self.keep], self.lb_state])
         ubc = np.concatenate([ubg[self.keep], self.ub_state])
         lam_c, lam_u = self._duals_in(lam_g0, lam_x0)
-        # each solve is a new control step: its multipliers are the last ones moved a stage on
-        lam_c, lam_u = lam_c[self.qp.shift_rows], lam_u[self.shift_vars]
-        self.qp.shift()
+        if lam_g0 is None:  # a cold start: no guess of the active rows either
+            self.qp.reset()
+        elif shift:  # the last control step's multipliers, moved a stage on
+            lam_c, lam_u = lam_c[self.qp.shift_rows], lam_u[self.shift_vars]
+            self.qp.shift()
         p = np.asarray(p, dtype=float)
         reg = o["regularization"]
         mu, it, status, ok, f = 0.0, 0, "", False, np.nan
@@ -244,17 +241,17 @@ class SqpBackend:
                 status = "Invalid_Number_Detected"
                 break
             viol = 0.0 if o["rti"] else _violation(gc, lbc, ubc)
-            stat = np.inf
-            if not o["rti"] and (it > 0 or lam_g0 is not None) and viol <= o["tol"]:
-                if (
-                    _complementarity(gc, lbc, ubc, lam_c) <= o["tol"]
-                    and _complementarity(Uv, self.lbU, self.ubU, lam_u) <= o["tol"]
-                ):
-                    stat = np.abs(grad + A.T @ lam_c + lam_u).max(initial=0.0)
-                if stat <= o["tol"]:
+            kkt = np.inf  # the larger of stationarity and complementarity
+            if not o["rti"] and (it > 0 or lam_g0 is not None) and viol <= o["constr_viol_tol"]:
+                kkt = max(
+                    _complementarity(gc, lbc, ubc, lam_c),
+                    _complementarity(Uv, self.lbU, self.ubU, lam_u),
+                    float(np.abs(grad + A.T @ lam_c + lam_u).max(initial=0.0)),
+                )
+                if kkt <= o["tol"] and viol <= o["tol"]:
                     ok, status = True, "Solve_Succeeded"
                     break
-            acceptable = acceptable + 1 if stat <= o["acceptable_tol"] else 0
+            acceptable = acceptable + 1 if kkt <= o["acceptable_tol"] else 0
             if acceptable >= o["acceptable_iter"] or (it >= max_iter and acceptable):
                 ok, status = True, "Solved_To_Acceptable_Level"
                 break

@@ -119,6 +119,7 @@ class IpoptShadow:
         # restarted at an answer, IPOPT's barrier must start small or it leaves the answer
         self.restart = make_backend(self.stage.tr, "ipopt", {**REF_OPTIONS, **RESTART})
         self.records: list[tuple[float, float, float, float]] = []
+        self.ipopt_failures = 0  # steps where IPOPT did not converge: not compared
 
     def before(self, x: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The NLP's parameters and the controller's initial guess, before its step."""
@@ -132,9 +133,9 @@ class IpoptShadow:
         if ans is None or not ans.success:
             return
         same = self.ipopt.solve(guess, p, tr.lbg, tr.ubg)
-        cert = self.restart.solve(ans.w, p, tr.lbg, tr.ubg, ans.lam_g, ans.lam_x)
+        cert = self.restart.solve(ans.w, p, tr.lbg, tr.ubg, ans.lam_g, ans.lam_x, shift=False)
         if not (same.success and cert.success):
-            self.records.append((np.inf, np.inf, np.inf, np.inf))
+            self.ipopt_failures += 1
             return
         u0 = tr.unpack(ans.w)[1][0]
         self.records.append(
@@ -152,6 +153,7 @@ class IpoptShadow:
         other = r[:, 0] > tol
         return {
             "shadow_steps": len(r),
+            "shadow_ipopt_failures": self.ipopt_failures,
             "shadow_same_guess_max_du": float(r[~other, 0].max(initial=0.0)),
             "shadow_other_optimum_steps": int(other.sum()),
             "shadow_other_optimum_ipopt_cost_higher": int((r[other, 1] > 0).sum()),
