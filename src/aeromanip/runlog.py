@@ -211,14 +211,10 @@ class RunLog:
             rp = np.degrees(self._norm(("roll", "pitch")))
             s["roll_pitch_mean_deg"] = _nan_or(rp, lambda a: float(np.nanmean(a)))
             s["roll_pitch_max_deg"] = _nan_or(rp, lambda a: float(np.nanmax(a)))
-        motors = sorted(
-            (c for c in self.columns if c.startswith("motor_") and c[6:].isdigit()),
-            key=lambda c: int(c[6:]),
-        )
-        if motors:  # differential thrust: what the rotors spend on moments [N]
-            m = np.column_stack([self.columns[c] for c in motors])
-            spread = m.max(axis=1) - m.min(axis=1)
-            s["rotor_spread_mean_n"] = _nan_or(spread, lambda a: float(np.nanmean(a)))
+        if "rotor_spread" in self.columns:  # differential thrust: spent on moments [N]
+            s["rotor_spread_mean_n"] = _nan_or(
+                self.columns["rotor_spread"], lambda a: float(np.nanmean(a))
+            )
         if "arm_torque" in self.columns:
             s["arm_torque_mean_nm"] = _nan_or(
                 self.columns["arm_torque"], lambda a: float(np.nanmean(a))

@@ -229,6 +229,7 @@ class PhysicsSimulator(Simulator):
         self.rng = np.random.default_rng(self.seed)
         self._arm_torque = self._arm_torque_now()
         self._motor_mean = np.array(self.controller.motors)
+        self._spread_mean = float(self._motor_mean.max() - self._motor_mean.min())
 
     def advance(self, u: np.ndarray, plan_x: np.ndarray, dt: float) -> None:
         """Fly ``dt`` [s] (a whole number of physics steps) tracking ramps from ``plan_x[0]``."""
@@ -265,7 +266,7 @@ class PhysicsSimulator(Simulator):
         fq, fv, h, every = self._free_q, self._free_v, self.h, fc.outer_every
         qpos, qvel, ctrl, xmat = self._qpos, self._qvel, self._ctrl, self._xmat_base
         outer, inner, step1, step2 = fc.outer, fc.inner, mujoco.mj_step1, mujoco.mj_step2
-        torque_sum, samples, motor_sum = 0.0, 0, [0.0] * self.rotors
+        torque_sum, samples, motor_sum, spread_sum = 0.0, 0, [0.0] * self.rotors, 0.0
         for k in range(n):
             t = k * h
             step1(m, d)  # kinematics of the current state: the base rotation in xmat
@@ -285,12 +286,14 @@ class PhysicsSimulator(Simulator):
             ctrl[:] = cmd
             step2(m, d)
             motor_sum = list(map(add, motor_sum, motors))
+            spread_sum += max(motors) - min(motors)
             if (n - 1 - k) % every == 0:  # arm torque at the outer rate, ending the period
                 mujoco.mj_rnePostConstraint(m, d)
                 torque_sum += self._arm_torque_now()
                 samples += 1
         self._arm_torque = torque_sum / samples
         self._motor_mean = np.array(motor_sum) / n
+        self._spread_mean = spread_sum / n
         self.time += n * self.h
         self.true_state()  # keeps the unwrapped yaw current
 
@@ -308,8 +311,10 @@ class PhysicsSimulator(Simulator):
         return x
 
     def extras(self) -> dict[str, float]:
-        """``roll``, ``pitch`` [rad] now; period means of ``motor_i``, ``thrust_total`` [N] and
-        ``arm_torque`` [N m] (xy moment of the arm on the base about its CoM, body frame)."""
+        """``roll``, ``pitch`` [rad] now; period means of ``motor_i``, ``thrust_total``,
+        ``rotor_spread`` (largest minus smallest rotor thrust, the differential thrust
+        spent on moments) [N] and ``arm_torque`` [N m] (xy moment of the arm on the base
+        about its CoM, body frame)."""
         w, x, y, z = self.data.qpos[self._free_q + 3 : self._free_q + 7]
         out = {
             "roll": math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y)),
@@ -318,6 +323,7 @@ class PhysicsSimulator(Simulator):
         for i, f in enumerate(self._motor_mean):
             out[f"motor_{i + 1}"] = float(f)
         out["thrust_total"] = float(self._motor_mean.sum())
+        out["rotor_spread"] = float(self._spread_mean)
         out["arm_torque"] = float(self._arm_torque)
         return out
 
