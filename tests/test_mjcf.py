@@ -13,6 +13,7 @@ from aeromanip.errors import ConfigError
 from aeromanip.robot.kinematics import Kinematics
 from aeromanip.robot.loader import load_robot
 from aeromanip.robot.spec import PLATFORM_DOFS, Inertial
+from aeromanip.sim.flight_controller import Mixer, rotor_layout
 from aeromanip.sim.mjcf import (
     FREE_JOINT,
     K_M,
@@ -41,7 +42,7 @@ def _place(spec, model, data, x):
 
 @pytest.mark.parametrize("name", ROBOTS)
 def test_mjcf_loads_with_expected_structure(name):
-    spec = load_robot(name)
+    spec = flat(load_robot(name))
     model = mujoco.MjModel.from_xml_string(robot_to_mjcf(spec, rotors=4))
     assert model.nq == 7 + spec.n_joints and model.nu == 4 + spec.n_joints
     base = model.body(spec.base_link).id
@@ -120,7 +121,7 @@ def test_mjcf_arm_kinematics_match_casadi(name, twisted):
 
 
 def test_mjcf_bounds_massless_links_and_supports_more_rotors():
-    spec = load_robot("x8-3dof")
+    spec = flat(load_robot("x8-3dof"))
     light = Inertial(mass=0.0, com=(0.0, 0.0, 0.0), inertia=(0.0,) * 6)
     joints = (replace(spec.joints[0], link=light), *spec.joints[1:])
     spec = replace(spec, joints=joints)
@@ -129,6 +130,30 @@ def test_mjcf_bounds_massless_links_and_supports_more_rotors():
     assert model.nu == 8 + spec.n_joints
     angles = [math.atan2(*model.site(f"rotor_{i + 1}").pos[1::-1]) for i in range(8)]
     np.testing.assert_allclose(np.diff(np.unwrap(angles)), 2 * math.pi / 8)
+
+
+def flat(spec):
+    """``spec`` with its rotors in one plane (no coaxial pairs)."""
+    return replace(spec, platform=replace(spec.platform, coaxial=False))
+
+
+def test_x8_has_four_coaxial_pairs_that_allocate_any_wrench():
+    """The 3DR X8: 8 rotors on 4 arms, each arm an upper and a lower rotor of opposite
+    spin; the mixer's allocation reproduces thrust and every body torque exactly."""
+    spec = load_robot("x8-3dof")
+    assert (spec.platform.rotors, spec.platform.coaxial) == (8, True)
+    model = mujoco.MjModel.from_xml_string(robot_to_mjcf(spec))
+    assert model.nu == 8 + spec.n_joints
+    sites = np.array([model.site(f"rotor_{i + 1}").pos for i in range(8)])
+    spins = np.sign([model.actuator(f"rotor_{i + 1}").gear[5] for i in range(8)])
+    np.testing.assert_allclose(sites[0::2], sites[1::2])  # pairs share their arm
+    np.testing.assert_array_equal(spins[0::2], -spins[1::2])
+    angles = np.degrees(np.arctan2(sites[0::2, 1], sites[0::2, 0])) % 360
+    np.testing.assert_allclose(angles, [45, 135, 225, 315])
+    positions, spin = rotor_layout(8, spec.platform.arm_length, coaxial=True)
+    mixer = Mixer(positions, spin, K_M, 100.0)
+    wrench = np.array([20.0, 0.3, -0.2, 0.05])
+    np.testing.assert_allclose(mixer.A @ mixer.mix(wrench[0], wrench[1:]), wrench, atol=1e-9)
 
 
 @pytest.mark.parametrize("rotors", [3, 5, 2, 0])

@@ -100,7 +100,7 @@ def test_hover_from_reset_is_steady(name, x0):
     assert drift < 0.01 and math.degrees(tilt) < 0.5 and joints < 1e-3, msg
     e = sim.extras()
     assert e["thrust_total"] == pytest.approx(sim.mass * G, rel=1e-6)
-    assert sum(e[f"motor_{i + 1}"] for i in range(4)) == pytest.approx(e["thrust_total"])
+    assert sum(e[f"motor_{i + 1}"] for i in range(sim.rotors)) == pytest.approx(e["thrust_total"])
 
 
 def test_hover_with_bent_arm_and_zeroed_integrators_recovers():

@@ -30,7 +30,7 @@ def test_physics_log_has_tilt_motors_and_arm_torque(flights):
     assert np.abs(log.column("roll")[1:]).max() > 0.0
     # the model flown is in the run directory, loadable by MuJoCo (and its viewer)
     model = mujoco.MjModel.from_xml_path(str(flights["hierarchical"] / "robot.xml"))
-    assert model.nu == 4 + 3  # rotors + arm servos
+    assert model.nu == 8 + 3  # the X8's rotors (4 coaxial pairs) + arm servos
 
 
 def test_cog_alignment_lowers_tilt_and_arm_torque_at_equal_tracking(flights):

@@ -44,6 +44,8 @@ def _del(data, keys):
 # (edit: keys into the table, value or DELETE), expected key path, expected problem
 DELETE = object()
 CASES = {
+    "odd rotor count": (["platform", "rotors"], 7, "platform.rotors", "even integer >= 4"),
+    "coaxial quad": (["platform", "rotors"], 4, "platform.rotors", "coaxial pairs need"),
     "zero axis": (["joints", 1, "axis"], [0.0, 0.0, 0.0], "joints[1].axis", "must be non-zero"),
     "non-unit axis": (["joints", 1, "axis"], [0.0, 2.0, 0.0], "joints[1].axis", "unit vector"),
     "negative link mass": (

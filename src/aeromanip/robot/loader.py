@@ -9,6 +9,8 @@ Format (all keys in SI units)::
     mass = 2.4                         # kg, without the arm
     inertia = [0.03, 0.03, 0.05]       # kg m^2, principal
     arm_length = 0.3                   # m, centre to rotor
+    rotors = 4                         # physics: rotors in an X layout (even, >= 4)
+    coaxial = false                    # true: stacked pairs, two per arm (e.g. X8)
     velocity = { x = 1.0, yaw = 0.5 }  # m/s, rad/s speed limits (default 1)
     [mount]                            # arm base in the body frame
     xyz = [0, 0, -0.08]
@@ -98,6 +100,8 @@ def _robot(t: Table, base_dir: Path | None) -> RobotSpec:
         inertia=pt.floats("inertia", [0.03, 0.03, 0.05], size=3),  # type: ignore[arg-type]
         arm_length=pt.float("arm_length", 0.3),
         velocity=velocity,
+        rotors=pt.int("rotors", 4),
+        coaxial=pt.bool("coaxial", False),
     )
     pt.done()
     mt = t.table("mount", {})

@@ -67,6 +67,8 @@ class Platform:
         mass: platform mass without the arm [kg].
         inertia: principal inertia ``(ixx, iyy, izz)`` about the platform CoM [kg m^2].
         arm_length: distance from the centre to each rotor [m] (used by physics).
+        rotors: number of rotors (physics); coaxial: rotors in stacked pairs, two per arm
+            (e.g. the 3DR X8: 8 rotors on 4 arms).
         velocity: speed limit per DoF [m/s or rad/s]; DoFs not named here are limited to 1.
     """
 
@@ -76,6 +78,8 @@ class Platform:
     inertia: Vec3 = (0.03, 0.03, 0.05)
     arm_length: float = 0.3
     velocity: Mapping[str, float] = field(default_factory=dict)
+    rotors: int = 4
+    coaxial: bool = False
 
     def velocity_limit(self, dof: str) -> float:
         """Speed limit of one platform DoF [m/s or rad/s]."""
@@ -181,6 +185,11 @@ def validate(spec: RobotSpec) -> None:
         raise ConfigError("platform.inertia: every entry must be > 0")
     if not spec.platform.arm_length > 0:
         raise ConfigError(f"platform.arm_length: must be > 0, got {spec.platform.arm_length}")
+    n, coaxial = spec.platform.rotors, spec.platform.coaxial
+    if isinstance(n, bool) or not isinstance(n, int) or n < 4 or n % 2:
+        raise ConfigError(f"platform.rotors: must be an even integer >= 4, got {n!r}")
+    if coaxial and (n % 4 or n < 8):
+        raise ConfigError(f"platform.rotors: coaxial pairs need a multiple of 4, >= 8, got {n}")
     if not spec.joints:
         raise ConfigError("joints: the arm needs at least one joint")
     for attr, key in _FRAME_KEYS.items():

@@ -41,15 +41,24 @@ GRAVITY = 9.81  # [m/s^2]
 Vec3 = tuple[float, float, float]
 
 
-def rotor_layout(rotors: int, arm_length: float) -> tuple[np.ndarray, np.ndarray]:
+def rotor_layout(
+    rotors: int, arm_length: float, coaxial: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """X layout: rotor xy positions ``(n, 2)`` [m] in the body frame and spin signs ``(n,)``.
 
-    Rotor ``i`` (0-based) sits at angle ``pi/n + 2 pi i/n`` from body x (rotor 1 front-left
-    for 4 rotors, counting counter-clockwise); spins alternate ``+1, -1, ...``: a ``+1`` rotor
-    twists the body about +z by ``k_m`` times its thrust.
+    Flat: rotor ``i`` (0-based) sits at angle ``pi/n + 2 pi i/n`` from body x (rotor 1
+    front-left for 4 rotors, counting counter-clockwise); spins alternate ``+1, -1, ...``: a
+    ``+1`` rotor twists the body about +z by ``k_m`` times its thrust. Coaxial (e.g. the 3DR
+    X8: 8 rotors on 4 arms): the ``n/2`` arms of the flat layout each carry an upper rotor
+    (even index, the flat layout's spin) and a lower one under it (odd index, the opposite
+    spin); the lower rotors' loss of efficiency in the upper ones' wake is not modelled.
     """
-    if rotors < 4 or rotors % 2:
-        raise ConfigError(f"physics.rotors: must be an even integer >= 4, got {rotors}")
+    if rotors < 4 or rotors % 2 or (coaxial and (rotors % 4 or rotors < 8)):
+        need = "a multiple of 4, >= 8, when coaxial" if coaxial else "an even integer >= 4"
+        raise ConfigError(f"physics.rotors: must be {need}, got {rotors}")
+    if coaxial:
+        arm_xy, arm_spins = rotor_layout(rotors // 2, arm_length)
+        return np.repeat(arm_xy, 2, axis=0), np.column_stack([arm_spins, -arm_spins]).ravel()
     a = math.pi / rotors + 2.0 * math.pi * np.arange(rotors) / rotors
     positions = arm_length * np.column_stack([np.cos(a), np.sin(a)])
     spins = np.where(np.arange(rotors) % 2 == 0, 1.0, -1.0)

@@ -154,26 +154,29 @@ def _segment_geom(name: str, end: np.ndarray, rgba: str) -> str:
 def robot_to_mjcf(
     spec: RobotSpec,
     *,
-    rotors: int = 4,
+    rotors: int | None = None,
     timestep: float = TIMESTEP,
     servo_hz: float = SERVO_HZ,
     servo_damping: float = SERVO_DAMPING,
 ) -> str:
-    """MJCF text of the UAM ``spec`` with ``rotors`` thrust actuators and one servo per joint.
+    """MJCF text of the UAM ``spec`` with ``rotors`` thrust actuators (default: the
+    platform's, flat or in coaxial pairs as it says) and one servo per joint.
 
     ``timestep`` [s] is the physics step; the base starts at the spec's fixed platform values
     (z = 1 m unless z is fixed) and a ``hover`` keyframe holds every rotor at ``m g / n``.
     """
+    rotors = spec.platform.rotors if rotors is None else rotors
     if isinstance(rotors, bool) or not isinstance(rotors, int) or rotors < 4 or rotors % 2:
         raise ConfigError(f"physics.rotors: must be an even integer >= 4, got {rotors!r}")
+    coaxial = spec.platform.coaxial
     if not (timestep > 0 and math.isfinite(timestep)):
         raise ConfigError(f"physics.rate_hz: physics step must be > 0, got {timestep}")
     L = spec.platform.arm_length
-    positions, spins = rotor_layout(rotors, L)
+    positions, spins = rotor_layout(rotors, L, coaxial)
     f_max = max_rotor_thrust(spec, rotors)
     fixed = {d: float(spec.platform.fixed.get(d, 0.0)) for d in PLATFORM_DOFS}
     start = (fixed["x"], fixed["y"], float(spec.platform.fixed.get("z", 1.0)))
-    disc = 0.9 * L * math.sin(math.pi / rotors)
+    disc = 0.9 * L * math.sin(math.pi / (rotors // 2 if coaxial else rotors))
     lines = [
         f"<mujoco model={quoteattr(spec.name)}>",
         '  <compiler angle="radian" autolimits="true" inertiafromgeom="false" '
@@ -208,11 +211,12 @@ def robot_to_mjcf(
     for i, (p, s) in enumerate(zip(positions, spins, strict=True)):
         tip = (p[0], p[1], 0.0)
         color = "0.8 0.3 0.2 0.5" if s > 0 else "0.2 0.4 0.8 0.5"
+        height = (-0.03 if i % 2 else 0.03) if coaxial else 0.03  # lower rotor of a pair
         lines += [
             f'      <geom name="frame_arm_{i + 1}" type="capsule" size="0.01" '
             f'fromto="0 0 0 {_v(tip)}" rgba="0.3 0.3 0.3 1"/>',
             f'      <geom name="rotor_disc_{i + 1}" type="cylinder" size="{_f(disc)} 0.005" '
-            f'pos="{_v((p[0], p[1], 0.03))}" rgba="{color}"/>',
+            f'pos="{_v((p[0], p[1], height))}" rgba="{color}"/>',
             f'      <site name="rotor_{i + 1}" pos="{_v(tip)}" size="0.01"/>',
         ]
     indent = "      "

@@ -70,7 +70,8 @@ class PhysicsSimulator(Simulator):
             every physics step).
         noise: measurement noise std devs ``{"position": m, "yaw": rad, "joints": rad}``.
         seed: seed of the noise generator (re-seeded at every ``reset``).
-        rotors: number of rotors (even, >= 4), X layout.
+        rotors: number of rotors (default: the platform's), X layout, flat or in coaxial
+            pairs as the platform says.
         gains: flight-controller gains (``FlightGains()`` by default).
         servo_hz: joint servo bandwidth at the largest joint inertia [Hz].
         servo_i: servo integral gain relative to kp [1/s].
@@ -91,7 +92,7 @@ class PhysicsSimulator(Simulator):
         outer_rate_hz: float = OUTER_RATE_HZ,
         noise: Mapping[str, float] | None = None,
         seed: int = 0,
-        rotors: int = 4,
+        rotors: int | None = None,
         gains: FlightGains | None = None,
         servo_hz: float = SERVO_HZ,
         servo_i: float = SERVO_I,
@@ -117,6 +118,7 @@ class PhysicsSimulator(Simulator):
         self.seed = seed
         self.servo_i = _number(servo_i, "physics.servo_i", 0.0)
         self.h = 1.0 / self.rate_hz
+        rotors = spec.platform.rotors if rotors is None else rotors
         self.xml = robot_to_mjcf(spec, rotors=rotors, timestep=self.h, servo_hz=servo_hz)
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
@@ -154,7 +156,7 @@ class PhysicsSimulator(Simulator):
         ]
         self._yaw_idx = spec.platform.dofs.index("yaw") if "yaw" in spec.platform.dofs else None
         self._fixed = {d: float(spec.platform.fixed.get(d, 0.0)) for d in PLATFORM_DOFS}
-        positions, spins = rotor_layout(rotors, spec.platform.arm_length)
+        positions, spins = rotor_layout(rotors, spec.platform.arm_length, spec.platform.coaxial)
         self.mixer = Mixer(positions, spins, K_M, max_rotor_thrust(spec, rotors))
         self.mass = float(m.body_subtreemass[self._base])
         self.gains = gains or FlightGains()
