@@ -2,6 +2,7 @@
 
 Layout (see the built-in files in ``aeromanip/scenarios/`` for documented examples)::
 
+    extends = "flight" | "other.toml"   (start from that scenario, override key by key)
     name, description, duration [s], initial_state [nx], sim ("kinematic" | "physics")
     robot = "x8-3dof"  |  robot = "path/robot.toml"  |  [robot] ... (inline robot table)
     [controller]  strategy, backend, horizon, dt, time_budget, [hierarchy], [solver_options]
