@@ -11,7 +11,8 @@ from aeromanip.cli import main
 
 @pytest.fixture(scope="module")
 def short_run():
-    return bench_controller(["baseline", "weighted", "constrained"], duration=20.0, warmup=1)
+    return bench_controller(["baseline", "weighted", "hierarchical", "constrained"],
+                            duration=20.0, warmup=1)
 
 
 def test_sqp_gives_the_plain_ipopt_closed_loop(short_run):
@@ -33,6 +34,10 @@ def test_shadow_ipopt_agrees_step_by_step(short_run):
     # local optima from the same guess, the SQP's not always the worse one...
     assert constrained["shadow_other_optimum_steps"] <= 0.25 * constrained["steps"]
     assert constrained["shadow_other_optimum_ipopt_cost_higher"] >= 1
+    # the hierarchy (both levels, the paper's stage-wise bounds): IPOPT's answer at every step
+    hier = short_run["variants"]["hierarchical"]
+    assert hier["shadow_steps"] == 40 and hier["shadow_ipopt_failures"] == 0
+    assert hier["shadow_other_optimum_steps"] == 0  # every command within 1e-4 of IPOPT's
     # ...but IPOPT restarted at each SQP answer stays there: each is a local optimum
     for r in (weighted, constrained):
         assert r["shadow_certified_max_du"] < 1e-4  # rad/s or m/s
