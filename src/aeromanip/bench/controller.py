@@ -31,18 +31,16 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from aeromanip.bench.shadow import REF_OPTIONS, IpoptHierarchyShadow, IpoptShadow
 from aeromanip.codegen import limit_blas_threads
-from aeromanip.controller import Command, Controller
+from aeromanip.controller import Controller
 from aeromanip.ocp import Problem, Transcription
 from aeromanip.scenario import Scenario, load_scenarios
-from aeromanip.solvers import make_backend
-from aeromanip.strategies import Hierarchical, Weighted
+from aeromanip.strategies import Weighted
 
 FAST = 25.0  # reference speed-up of the constrained variant: velocity bounds bind
 FLIGHT_FREQ = (0.0125, 0.0091, 0.0067)  # Hz, flight.toml's Lissajous frequencies
 
-REF_OPTIONS = {"ipopt.tol": 1e-10}  # the reference answers: IPOPT converged tightly
-RESTART = {"ipopt.mu_init": 1e-10, "ipopt.warm_start_bound_push": 1e-10}
 
 # name: (scenario kind, strategy ("residual": hierarchical, mode "residual"), backend,
 #        solver options, the variant it should equal)
@@ -98,122 +96,6 @@ def _scenario(kind: str, duration: float) -> Scenario:
     if kind == "fast":
         sets.append(f"reference.frequency={[FAST * f for f in FLIGHT_FREQ]}")
     return load_scenarios("flight", sets)[""]
-
-
-class IpoptShadow:
-    """IPOPT on the very NLPs a converged weighted controller solves, step by step.
-
-    Closed loops of two solvers can part where the NLP has several local optima (a fast
-    reference with binding velocity bounds has): from there on they solve different
-    NLPs. The shadow compares answers where the inputs are identical. At each step it
-    solves the controller's NLP (same state, previous command, time) with IPOPT
-    (``REF_OPTIONS``) twice: from the controller's own initial guess (same answer, or
-    another local optimum?), and restarted at the controller's answer with its
-    multipliers and a small barrier parameter (``RESTART``): if IPOPT stays there, the
-    answer is a local optimum to IPOPT's tolerance too.
-    """
-
-    def __init__(self, ctrl: Controller) -> None:
-        self.ctrl = ctrl
-        self.stage = ctrl.strategy.stages[0]
-        self.ipopt = make_backend(self.stage.tr, "ipopt", REF_OPTIONS)
-        # restarted at an answer, IPOPT's barrier must start small or it leaves the answer
-        self.restart = make_backend(self.stage.tr, "ipopt", {**REF_OPTIONS, **RESTART})
-        self.records: list[tuple[float, float, float, float]] = []
-        self.ipopt_failures = 0  # steps where IPOPT did not converge: not compared
-
-    def before(self, x: np.ndarray, t: float) -> tuple[np.ndarray, list]:
-        """The NLP's parameters and the controller's initial guesses, before its step."""
-        c = self.ctrl
-        p = self.stage.tr.parameters(x, c.u_prev, c.problem.stage_params(t))
-        return p, c._guesses(x)
-
-    def after(self, p: np.ndarray, guesses: list, cmd: Command) -> None:
-        """Solve with IPOPT and record the differences (commands [rad/s, m/s], costs)."""
-        tr, ans = self.stage.tr, self.stage.warm
-        if ans is None or not ans.success:
-            return
-        same = self.ipopt.solve(guesses[0], p, tr.lbg, tr.ubg)
-        cert = self.restart.solve(ans.w, p, tr.lbg, tr.ubg, ans.lam_g, ans.lam_x, shift=False)
-        if not (same.success and cert.success):
-            self.ipopt_failures += 1
-            return
-        u0 = tr.unpack(ans.w)[1][0]
-        self.records.append(
-            (
-                float(np.abs(tr.unpack(same.w)[1][0] - u0).max()),
-                (same.f - ans.f) / max(abs(ans.f), 1e-12),
-                float(np.abs(tr.unpack(cert.w)[1][0] - u0).max()),
-                (cert.f - ans.f) / max(abs(ans.f), 1e-12),
-            )
-        )
-
-    def summary(self, tol: float = 1e-4) -> dict[str, Any]:
-        """Agreement over the run; an "other optimum" step differs by more than ``tol``."""
-        r = np.array(self.records).reshape(-1, 4)
-        other = r[:, 0] > tol
-        return {
-            "shadow_steps": len(r),
-            "shadow_ipopt_failures": self.ipopt_failures,
-            "shadow_same_guess_max_du": float(r[~other, 0].max(initial=0.0)),
-            "shadow_other_optimum_steps": int(other.sum()),
-            "shadow_other_optimum_ipopt_cost_higher": int((r[other, 1] > 0).sum()),
-            "shadow_certified_max_du": float(r[:, 2].max(initial=0.0)),
-            "shadow_certified_max_rel_cost": float(np.abs(r[:, 3]).max(initial=0.0)),
-        }
-
-
-class IpoptHierarchyShadow:
-    """The hierarchy's answer against IPOPT's on the same inputs, step by step.
-
-    At each step the controller's hierarchy (state, previous command, time, each level's
-    initial guess) is solved again by the same strategy with IPOPT (``REF_OPTIONS``): the
-    commands are compared, and where they differ, the levels' optimal costs in their
-    order of priority say which answer is the better one.
-    """
-
-    def __init__(self, ctrl: Controller) -> None:
-        h = ctrl.strategy
-        self.ctrl = ctrl
-        self.ref = Hierarchical(ctrl.problem, h.mode, h.rel_tol, h.abs_tol, "ipopt", REF_OPTIONS)
-        self.records: list[tuple[float, float]] = []
-        self.ipopt_failures = 0
-
-    def before(self, x: np.ndarray, t: float) -> tuple[np.ndarray, list]:
-        """The parameters and the controller's initial guesses, before its step."""
-        c = self.ctrl
-        tr = c.strategy.transcription
-        return tr.parameters(x, c.u_prev, c.problem.stage_params(t)), c._guesses(x)
-
-    def after(self, p: np.ndarray, guesses: list, cmd: Command) -> None:
-        """Solve the hierarchy with IPOPT; record the command difference and which
-        answer is better (+1: the controller's, -1: IPOPT's) by the levels in order."""
-        mine = cmd.levels
-        if cmd.status != "ok" or not all(lv.success for lv in mine):
-            return
-        ref = self.ref.solve(p, guesses)
-        if not ref.success or not all(lv.success for lv in ref.levels):
-            self.ipopt_failures += 1
-            return
-        u_ref = self.ref.transcription.unpack(ref.w)[1][0]
-        better = 0.0
-        for a, b in zip(mine, ref.levels, strict=True):
-            if abs(a.cost - b.cost) > 1e-6 * max(abs(a.cost), abs(b.cost), 1e-9):
-                better = 1.0 if a.cost < b.cost else -1.0
-                break
-        self.records.append((float(np.abs(u_ref - cmd.u).max()), better))
-
-    def summary(self, tol: float = 1e-4) -> dict[str, Any]:
-        """Agreement over the run; an "other optimum" step differs by more than ``tol``."""
-        r = np.array(self.records).reshape(-1, 2)
-        other = r[:, 0] > tol
-        return {
-            "shadow_steps": len(r),
-            "shadow_ipopt_failures": self.ipopt_failures,
-            "shadow_same_guess_max_du": float(r[~other, 0].max(initial=0.0)),
-            "shadow_other_optimum_steps": int(other.sum()),
-            "shadow_other_optimum_ipopt_cost_higher": int((r[other, 1] > 0).sum()),
-        }
 
 
 def _stepper(
