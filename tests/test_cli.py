@@ -37,6 +37,20 @@ def test_bad_input_is_one_clear_line_and_exit_2(args, message, capsys):
     assert len(err.splitlines()) == 1 and "Traceback" not in err
 
 
+def test_a_typo_in_a_key_is_named_with_its_likely_meaning(tmp_path, capsys):
+    from importlib import resources
+
+    flight = (resources.files("aeromanip") / "scenarios" / "flight.toml").read_text()
+    missing = tmp_path / "missing.toml"  # a required key spelt wrong
+    missing.write_text(flight.replace("duration = 780.0", "duraton = 780.0", 1))
+    assert main(["run", str(missing)]) == 2
+    assert "duration: missing required key (is 'duraton' a typo?)" in capsys.readouterr().err
+    extra = tmp_path / "extra.toml"  # an optional key spelt wrong
+    extra.write_text('extends = "flight"\n[controller]\nhorizn = 5\n')
+    assert main(["run", str(extra)]) == 2
+    assert "controller.horizn: unknown key (did you mean 'horizon'?)" in capsys.readouterr().err
+
+
 def test_malformed_toml_is_a_clear_error(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text("name = 'x'\n[controller\n")

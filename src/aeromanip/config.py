@@ -6,6 +6,7 @@ that an unknown key, a missing key or a wrong type is reported the same way.
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from collections.abc import Mapping
@@ -85,7 +86,9 @@ class Table:
         self._used.add(name)
         if name not in self.data:
             if default is _MISSING:
-                raise ConfigError(f"{self.key(name)}: missing required key")
+                close = difflib.get_close_matches(name, [str(k) for k in self.data], n=1)
+                hint = f" (is {self.key(close[0])!r} a typo?)" if close else ""
+                raise ConfigError(f"{self.key(name)}: missing required key{hint}")
             value = default
         else:
             value = self.data[name]
@@ -160,7 +163,9 @@ class Table:
         """Raise on any key that was never read (a typo would otherwise pass silently)."""
         unknown = sorted(set(self.data) - self._used)
         if unknown:
-            raise ConfigError(f"{self.key(unknown[0])}: unknown key")
+            close = difflib.get_close_matches(unknown[0], sorted(self._used), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ConfigError(f"{self.key(unknown[0])}: unknown key{hint}")
 
 
 def to_float(v: Any, path: str, *, finite: bool = True) -> float:
