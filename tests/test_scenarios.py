@@ -196,3 +196,15 @@ def test_a_scenario_extends_another_key_by_key(tmp_path):
 
     with pytest.raises(ConfigError, match="extends: a cycle"):
         load_scenarios(tmp_path / "a.toml")
+
+
+def test_clearance_margin_plans_inside_the_true_limit():
+    from aeromanip.constraints import Clearance
+    from aeromanip.errors import ConfigError
+
+    sc = load_scenarios("flight")[""]
+    planned = [c for c in sc.problem.constraints if isinstance(c, Clearance)]
+    assert sc.clearance.d_min == 0.1  # what runs are judged against
+    assert [c.d_min for c in planned] == [pytest.approx(0.105)]  # what the NMPC keeps
+    with pytest.raises(ConfigError, match=r"clearance\.margin: must be >= 0 m"):
+        load_scenarios("flight", ["clearance.margin=-0.01"])

@@ -9,7 +9,8 @@ Layout (see the built-in files in ``aeromanip/scenarios/`` for documented exampl
     [bounds]      joints, velocity (bools), platform_box = { z = [lo, hi], ... },
                   platform_margin [m], joint_margin [rad] (the NMPC plans inside the
                   box and joint limits shrunk by them)
-    [clearance]   d_min, points  (omit the table for no self-collision constraint)
+    [clearance]   d_min, points, margin [m] (planned at d_min + margin; omit the table
+                  for no self-collision constraint)
     [reference]   kind = "sinusoids" | "waypoints" | "lissajous" | "csv" | "constant" ...
     [tasks.NAME]  kind (default NAME), weight, terminal_weight, level | regularizer = true,
                   and the task's own options (tracked, target_xy, eps, delta, kink)
@@ -288,8 +289,12 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
         ):
             raise ConfigError(f"{cl.key('points')}: expected an array of point names")
         clearance = Clearance(cl.float("d_min", 0.1), points)
+        margin = cl.float("margin", 0.0)
+        if margin < 0.0:
+            raise ConfigError(f"{cl.key('margin')}: must be >= 0 m, got {margin}")
         cl.done()
-        problem.add_constraint(clearance)
+        # the NMPC keeps margin more than d_min: a real arm lags its plan a little
+        problem.add_constraint(Clearance(clearance.d_min + margin, points))
 
     x0 = np.array(t.floats("initial_state", size=robot.nx))
     if bounds.violation(x0) > 0:
