@@ -49,6 +49,14 @@ def test_a_typo_in_a_key_is_named_with_its_likely_meaning(tmp_path, capsys):
     extra.write_text('extends = "flight"\n[controller]\nhorizn = 5\n')
     assert main(["run", str(extra)]) == 2
     assert "controller.horizn: unknown key (did you mean 'horizon'?)" in capsys.readouterr().err
+    # a missing key's hint never names a key that is there and right
+    flight_no_duration = "\n".join(
+        ln for ln in flight.splitlines() if not ln.startswith("duration =")
+    )
+    missing.write_text(flight_no_duration)
+    assert main(["run", str(missing)]) == 2
+    err = capsys.readouterr().err
+    assert "duration: missing required key" in err and "typo" not in err
 
 
 def test_malformed_toml_is_a_clear_error(tmp_path, capsys):

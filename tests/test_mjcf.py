@@ -151,6 +151,8 @@ def test_x8_has_four_coaxial_pairs_that_allocate_any_wrench():
     angles = np.degrees(np.arctan2(sites[0::2, 1], sites[0::2, 0])) % 360
     np.testing.assert_allclose(angles, [45, 135, 225, 315])
     positions, spin = rotor_layout(8, spec.platform.arm_length, coaxial=True)
+    np.testing.assert_allclose(sites[:, :2], positions, atol=1e-12)  # MJCF = mixer's layout
+    np.testing.assert_array_equal(spins, spin)
     mixer = Mixer(positions, spin, K_M, 100.0)
     wrench = np.array([20.0, 0.3, -0.2, 0.05])
     np.testing.assert_allclose(mixer.A @ mixer.mix(wrench[0], wrench[1:]), wrench, atol=1e-9)

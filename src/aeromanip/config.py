@@ -86,7 +86,8 @@ class Table:
         self._used.add(name)
         if name not in self.data:
             if default is _MISSING:
-                close = difflib.get_close_matches(name, [str(k) for k in self.data], n=1)
+                unread = [str(k) for k in self.data if k not in self._used]
+                close = difflib.get_close_matches(name, unread, n=1)
                 hint = f" (is {self.key(close[0])!r} a typo?)" if close else ""
                 raise ConfigError(f"{self.key(name)}: missing required key{hint}")
             value = default

@@ -95,8 +95,9 @@ def _agreement(
 class IpoptHierarchyShadow:
     """The hierarchy's answer against IPOPT's on the same inputs, step by step.
 
-    At each step the controller's hierarchy (state, previous command, time, each level's
-    initial guess) is solved again by the same strategy with IPOPT (``REF_OPTIONS``): the
+    At each step the controller's hierarchy (state, previous command, time, the initial
+    guess) is solved again by the same strategy with IPOPT (``REF_OPTIONS``, each lower
+    level starting from the level above's solution, as IPOPT wants a feasible start): the
     commands are compared, and where they differ, the levels' optimal costs in their
     order of priority say which answer is the better one.
     """

@@ -54,7 +54,11 @@ def rotor_layout(
     spin); the lower rotors' loss of efficiency in the upper ones' wake is not modelled.
     """
     if rotors < 4 or rotors % 2 or (coaxial and (rotors % 4 or rotors < 8)):
-        need = "a multiple of 4, >= 8, when coaxial" if coaxial else "an even integer >= 4"
+        need = (
+            "a multiple of 4, >= 8, for coaxial pairs (platform.coaxial)"
+            if coaxial
+            else "an even integer >= 4"
+        )
         raise ConfigError(f"physics.rotors: must be {need}, got {rotors}")
     if coaxial:
         arm_xy, arm_spins = rotor_layout(rotors // 2, arm_length)
