@@ -54,8 +54,10 @@ def main() -> None:
         x = x + 0.1 * cmd.u  # the ideal inner loop; a robot would apply cmd.u here
         err = np.linalg.norm(np.asarray(robot_ee(problem, x)) - [0.3, 0.2, 0.7])
         if k % 10 == 9:
-            print(f"{0.1 * (k + 1):5.1f} {1e3 * err:12.2f} {x[2]:6.3f} "
-                  f"{1e3 * cmd.solve_time_s:9.2f}  {cmd.status}")
+            print(
+                f"{0.1 * (k + 1):5.1f} {1e3 * err:12.2f} {x[2]:6.3f} "
+                f"{1e3 * cmd.solve_time_s:9.2f}  {cmd.status}"
+            )
 
 
 def robot_ee(problem: Problem, x: np.ndarray) -> np.ndarray:

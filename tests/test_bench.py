@@ -11,8 +11,9 @@ from aeromanip.cli import main
 
 @pytest.fixture(scope="module")
 def short_run():
-    return bench_controller(["baseline", "weighted", "hierarchical", "constrained"],
-                            duration=20.0, warmup=1)
+    return bench_controller(
+        ["baseline", "weighted", "hierarchical", "constrained"], duration=20.0, warmup=1
+    )
 
 
 def test_sqp_gives_the_plain_ipopt_closed_loop(short_run):

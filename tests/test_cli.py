@@ -9,8 +9,13 @@ from aeromanip.cli import main
 
 
 def run_cli(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "aeromanip.cli", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "aeromanip.cli", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 @pytest.mark.parametrize(
@@ -19,11 +24,15 @@ def run_cli(*args, cwd=None):
         (["run", "nosuch"], "unknown scenario 'nosuch'"),
         (["run", "flight", "--set", "controller.horizn=5"], "controller.horizn: unknown key"),
         (["run", "flight", "--set", "nosuch.key=1"], "unknown key 'nosuch'"),
-        (["run", "flight", "--set", "controller.horizon=abc"],
-         "controller.horizon: expected an integer, got 'abc'"),
+        (
+            ["run", "flight", "--set", "controller.horizon=abc"],
+            "controller.horizon: expected an integer, got 'abc'",
+        ),
         (["run", "flight", "--set", "controller.dt=-0.5"], "dt: must be a finite number > 0"),
-        (["run", "flight", "--set", "controller.strategy=lexicographic"],
-         "controller.strategy: 'lexicographic' is not one of"),
+        (
+            ["run", "flight", "--set", "controller.strategy=lexicographic"],
+            "controller.strategy: 'lexicographic' is not one of",
+        ),
         (["run", "flight", "--set", "noequals"], "expected KEY=VALUE"),
         (["run", "planar", "--variant", "cond-max"], "unknown variant"),
         (["run", "flight", "--set", "initial_state=[0, 0, 1]"], "initial_state: expected 7"),
@@ -70,8 +79,15 @@ def test_malformed_toml_is_a_clear_error(tmp_path, capsys):
 def test_list_names_scenarios_and_robots(capsys):
     assert main(["list"]) == 0
     out = capsys.readouterr().out
-    for name in ("planar", "waypoints", "waypoints-unbounded", "flight", "flight-cog",
-                 "x8-3dof", "planar-2dof"):
+    for name in (
+        "planar",
+        "waypoints",
+        "waypoints-unbounded",
+        "flight",
+        "flight-cog",
+        "x8-3dof",
+        "planar-2dof",
+    ):
         assert name in out
 
 
@@ -90,7 +106,8 @@ def test_replot_keeps_the_variants_in_run_order(tmp_path):
     from aeromanip.cli import _run_order
 
     (tmp_path / "summary.json").write_text(
-        '{"cond-off": {"x": 1}, "cond-default": {"x": 2}, "cond-high": {"x": 3}}')
+        '{"cond-off": {"x": 1}, "cond-default": {"x": 2}, "cond-high": {"x": 3}}'
+    )
     assert _run_order(tmp_path) == ["cond-off", "cond-default", "cond-high"]
     (tmp_path / "summary.json").write_text('{"steps": 3}')  # a single run's summary
     assert _run_order(tmp_path) == []

@@ -6,16 +6,20 @@ from pathlib import Path
 
 import numpy as np
 
-from aeromanip.runlog import read_summary
-from aeromanip.runner import run_scenarios
-from aeromanip.scenario import load_scenarios
+from aeromanip.experiment.runlog import read_summary
+from aeromanip.experiment.runner import run_scenarios
+from aeromanip.experiment.scenario import load_scenarios
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def test_user_task_example_holds_the_point_and_the_height():
-    proc = subprocess.run([sys.executable, str(EXAMPLES / "user_task.py")],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, str(EXAMPLES / "user_task.py")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     last = proc.stdout.strip().splitlines()[-1].split()
     err_mm, z, status = float(last[1]), float(last[2]), last[-1]
@@ -23,8 +27,7 @@ def test_user_task_example_holds_the_point_and_the_height():
 
 
 def test_extending_scenario_flies_the_urdf_arm(tmp_path):
-    scenarios = load_scenarios(EXAMPLES / "scenarios" / "flight-urdf-arm.toml",
-                               ["duration=10"])
+    scenarios = load_scenarios(EXAMPLES / "scenarios" / "flight-urdf-arm.toml", ["duration=10"])
     sc = scenarios[""]
     assert sc.robot.name == "urdf-arm" and sc.strategy == "hierarchical"
     run_scenarios(scenarios, tmp_path, progress=False, figures=False)

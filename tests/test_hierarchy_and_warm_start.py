@@ -17,12 +17,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from aeromanip.constraints import Bounds, Clearance
-from aeromanip.controller import Controller
-from aeromanip.ocp import Problem, shift_map
+from aeromanip.nmpc.constraints import Bounds, Clearance
+from aeromanip.nmpc.controller import Controller
+from aeromanip.nmpc.problem import Problem
+from aeromanip.nmpc.strategies import Hierarchical, StrategyResult, Weighted
+from aeromanip.nmpc.transcription import shift_map
 from aeromanip.references import Constant
 from aeromanip.robot.loader import load_robot
-from aeromanip.strategies import Hierarchical, StrategyResult, Weighted
 from aeromanip.tasks import CogAlignment, ControlRate, EndEffectorTracking
 
 X8 = load_robot("x8-3dof")
@@ -367,7 +368,7 @@ def test_reset_makes_the_next_start_cold_guess_and_multipliers():
     (``shift_g``, ``shift_w``) on a warm one, and none again after ``reset``."""
     pb = rate_problem()
     ctrl = Controller(pb, "weighted", "ipopt")
-    st = ctrl.strategy.stages[0]
+    st = ctrl.strategy.solvers[0]
     tr = st.tr
     seen = []
 
@@ -412,7 +413,7 @@ def test_hierarchy_levels_start_from_documented_guesses(backend):
     ctrl = Controller(pb, "hierarchical", backend, opts)
     calls = spy(ctrl)
     starts = [[], []]
-    for i, st in enumerate(ctrl.strategy.stages):
+    for i, st in enumerate(ctrl.strategy.solvers):
 
         def record(w0, *args, _solve=st.backend.solve, _i=i, **kw):
             starts[_i].append(np.array(w0))

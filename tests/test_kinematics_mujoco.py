@@ -13,7 +13,7 @@ import pytest
 
 from aeromanip.robot.kinematics import Kinematics
 from aeromanip.robot.loader import load_robot
-from aeromanip.robot.urdf import robot_to_urdf
+from aeromanip.robot.urdf_export import robot_to_urdf
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "robots" / "urdf-arm.toml"
 ROBOTS = ["planar-2dof", "x8-3dof", str(EXAMPLE)]
@@ -52,13 +52,14 @@ def test_forward_kinematics_cog_and_jacobian_match_mujoco(pair):
         mujoco.mj_kinematics(model, data)
         mujoco.mj_comPos(model, data)
         # end-effector pose
-        np.testing.assert_allclose(np.asarray(kin.ee_position(x)).ravel(), data.xpos[ee],
-                                   atol=1e-9)
-        np.testing.assert_allclose(np.asarray(kin.ee_rotation(x)),
-                                   data.xmat[ee].reshape(3, 3), atol=1e-9)
+        np.testing.assert_allclose(np.asarray(kin.ee_position(x)).ravel(), data.xpos[ee], atol=1e-9)
+        np.testing.assert_allclose(
+            np.asarray(kin.ee_rotation(x)), data.xmat[ee].reshape(3, 3), atol=1e-9
+        )
         # every joint origin
-        np.testing.assert_allclose(np.asarray(kin.joint_positions(x)).T,
-                                   data.xanchor[hinge], atol=1e-9)
+        np.testing.assert_allclose(
+            np.asarray(kin.joint_positions(x)).T, data.xanchor[hinge], atol=1e-9
+        )
         # arm CoG in the body frame: mass-weighted link CoMs, moved into the base frame
         com_world = masses @ data.xipos[links] / masses.sum()
         R_wb = data.xmat[base].reshape(3, 3)

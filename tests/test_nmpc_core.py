@@ -6,10 +6,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from aeromanip.constraints import Bounds, Clearance, UserConstraint
-from aeromanip.controller import Controller
 from aeromanip.errors import ConfigError, InfeasibleProblemError, StateError
-from aeromanip.ocp import Problem
+from aeromanip.nmpc.constraints import Bounds, Clearance, UserConstraint
+from aeromanip.nmpc.controller import Controller
+from aeromanip.nmpc.problem import Problem
 from aeromanip.references import Constant
 from aeromanip.robot.loader import load_robot
 from aeromanip.tasks import (
@@ -123,8 +123,10 @@ def test_three_levels_each_keeps_higher_optima(mode):
     assert cmd.task_costs["cog"] <= two_cmd.levels[1].cost * 1.001 + 1e-6 * n + 1e-9
     # ...and level 2 lowers the condition number's cost below what the two levels leave
     rho_cost = pb.kin.condition_number("xyz")
+
     def cond_cost(plan_x):
         return sum((1.0 - float(rho_cost(x))) ** 2 for x in plan_x[1:])  # x0 is given
+
     assert cond_cost(cmd.plan_x) < 0.99 * cond_cost(two_cmd.plan_x)
     assert cmd.levels[2].gain > 0.0
 
@@ -278,10 +280,10 @@ def test_orientation_tracking_reaches_the_desired_pose():
 def test_out_of_iterations_retry_goes_on_from_the_last_iterate():
     """A warm-started solve that runs out of iterations is retried without multipliers
     from where it stopped (not from the start again); another failure restarts."""
-    from aeromanip.solvers import NlpResult
-    from aeromanip.strategies import Weighted
+    from aeromanip.nmpc.backends.base import NlpResult
+    from aeromanip.nmpc.strategies import Weighted
 
-    st = Weighted(make_problem(levels=(0, 0))).stages[0]
+    st = Weighted(make_problem(levels=(0, 0))).solvers[0]
     n, m = st.tr.w.numel(), st.tr.g.numel()
     seen = []
 
@@ -292,27 +294,36 @@ def test_out_of_iterations_retry_goes_on_from_the_last_iterate():
         def solve(self, w0, p, lbg, ubg, lam_g0=None, lam_x0=None):
             seen.append((w0.copy(), lam_g0 is not None))
             ok = len(seen) % 2 == 0
-            return NlpResult(w0 + 1.0, np.zeros(m), np.zeros(n), 0.0, ok,
-                             "ok" if ok else self.first_status, 3, 0.0)
+            return NlpResult(
+                w0 + 1.0,
+                np.zeros(m),
+                np.zeros(n),
+                0.0,
+                ok,
+                "ok" if ok else self.first_status,
+                3,
+                0.0,
+            )
 
-    from aeromanip.strategies import _solve_stage
+    from aeromanip.nmpc.strategies import _solve_level
 
     w0, p = np.zeros(n), np.zeros(st.tr.p.numel())
     for status, restart in (("Maximum_Iterations_Exceeded", w0 + 1.0), ("Infeasible", w0)):
         seen.clear()
         st.backend = Spy(status)
         st.warm = NlpResult(w0, np.zeros(m), np.zeros(n), 0.0, True, "ok", 1, 0.0)
-        res = _solve_stage(st, p, w0, st.tr.ubg)
+        res = _solve_level(st, p, w0, st.tr.ubg)
         assert res.success and res.iterations == 6
         assert seen[0][1] and not seen[1][1]  # warm multipliers first, then none
         np.testing.assert_array_equal(seen[1][0], restart)
 
 
 def test_solver_options_can_be_set_from_the_command_line():
-    from aeromanip.scenario import load_scenarios
+    from aeromanip.experiment.scenario import load_scenarios
 
-    sc = load_scenarios("flight", ["controller.backend='sqp'",
-                                   "controller.solver_options.max_iter=7"])[""]
+    sc = load_scenarios(
+        "flight", ["controller.backend='sqp'", "controller.solver_options.max_iter=7"]
+    )[""]
     assert sc.backend == "sqp" and sc.solver_options == {"max_iter": 7}
     with pytest.raises(ConfigError, match=r"solver_options\.max_itr: unknown sqp option"):
         Controller(sc.problem, "weighted", "sqp", {"max_itr": 7})

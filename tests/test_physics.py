@@ -152,7 +152,7 @@ def test_slow_motion_follows_kinematic_simulation(name, x0):
     x0 = np.array(x0)
     results = {}
     for mode in ("nominal", "measured"):
-        sim, ideal = PhysicsSimulator(spec), KinematicSimulator(spec.nx)
+        sim, ideal = PhysicsSimulator(spec), KinematicSimulator(spec)
         sim.reset(x0)
         ideal.reset(x0)
         errors, side = [], 0.0

@@ -4,17 +4,16 @@ import mujoco
 import numpy as np
 import pytest
 
-from aeromanip.runlog import RunLog, read_summary
-from aeromanip.runner import run_scenarios
-from aeromanip.scenario import load_scenarios
+from aeromanip.experiment.runlog import RunLog, read_summary
+from aeromanip.experiment.runner import run_scenarios
+from aeromanip.experiment.scenario import load_scenarios
 
 
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory):
     """The built-in flight-cog comparison (the flight with and without the CoG level)."""
     d = tmp_path_factory.mktemp("flight-cog")
-    run_scenarios(load_scenarios("flight-cog", ["duration=60"]), d, progress=False,
-                  figures=False)
+    run_scenarios(load_scenarios("flight-cog", ["duration=60"]), d, progress=False, figures=False)
     return {name: d / name for name in ("hierarchical", "tracking-only")}
 
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-import aeromanip.plots as plots
+import aeromanip.experiment.plots as plots
 from aeromanip.errors import ConfigError
-from aeromanip.plots import (
+from aeromanip.experiment.plots import (
     _command_dofs,
     plot_attitude,
     plot_commands,
@@ -20,8 +20,8 @@ from aeromanip.plots import (
     plot_run,
     plot_tracking,
 )
+from aeromanip.experiment.runlog import RunLog
 from aeromanip.references import Waypoints
-from aeromanip.runlog import RunLog
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 WAYPOINTS = [[1.0, 0.0, 0.5], [1.5, 0.5, 0.7], [1.0, 1.0, 0.4]]

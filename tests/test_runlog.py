@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from aeromanip.errors import ConfigError
-from aeromanip.runlog import (
+from aeromanip.experiment.runlog import (
     RunLog,
     contract_columns,
     load,

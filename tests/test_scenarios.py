@@ -5,9 +5,9 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from aeromanip.runlog import RunLog, motion_share, read_summary
-from aeromanip.runner import run_scenarios
-from aeromanip.scenario import builtin_scenarios, load_scenarios
+from aeromanip.experiment.runlog import RunLog, motion_share, read_summary
+from aeromanip.experiment.runner import run_scenarios
+from aeromanip.experiment.scenario import builtin_scenarios, load_scenarios
 
 PLANAR_SHORT = [
     "duration=45",
@@ -33,8 +33,7 @@ def waypoints(tmp_path_factory):
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
     out = tmp_path_factory.mktemp("flight")
-    run_scenarios(load_scenarios("flight", ["duration=90", "sim='kinematic'"]), out,
-                  progress=False)
+    run_scenarios(load_scenarios("flight", ["duration=90", "sim='kinematic'"]), out, progress=False)
     return out
 
 
@@ -60,8 +59,10 @@ def test_planar_small_phase_by_arm_big_phase_by_platform(planar):
 
 def test_planar_condition_number_falls_with_its_weight(planar):
     """Fig. 4: mean rho decreases from cond-off to cond-default to cond-high."""
-    rho = [read_summary(planar / v / "summary.json")["cond_mean"]
-           for v in ("cond-off", "cond-default", "cond-high")]
+    rho = [
+        read_summary(planar / v / "summary.json")["cond_mean"]
+        for v in ("cond-off", "cond-default", "cond-high")
+    ]
     assert rho[0] > rho[1] > rho[2], rho
 
 
@@ -83,8 +84,7 @@ def test_unbounded_tracking_alone_lifts_the_arm_to_the_platform(tmp_path):
     """Fig. 6: without motion bounds, tracking alone brings platform and end effector to
     similar heights (the arm stretched, above the self-collision depth); the hierarchy
     keeps the arm below the platform and its CoG aligned. Both track the waypoints."""
-    run_scenarios(load_scenarios("waypoints-unbounded"), tmp_path, progress=False,
-                  figures=False)
+    run_scenarios(load_scenarios("waypoints-unbounded"), tmp_path, progress=False, figures=False)
     only = RunLog.load(tmp_path / "tracking-only")
     hier = RunLog.load(tmp_path / "hierarchical")
     s_only = read_summary(tmp_path / "tracking-only" / "summary.json")
@@ -124,9 +124,19 @@ def test_run_directory_follows_the_contract(flight):
     log = RunLog.load(flight)
     assert log.missing_columns() == []
     summary = read_summary(flight / "summary.json")
-    for key in ("ee_rmse_m", "ee_max_err_m", "cog_xy_mean_m", "cond_mean", "min_clearance_m",
-                "max_bound_violation", "solve_ms_median", "solve_ms_p95", "solve_ms_max",
-                "steps", "solver_failures"):
+    for key in (
+        "ee_rmse_m",
+        "ee_max_err_m",
+        "cog_xy_mean_m",
+        "cond_mean",
+        "min_clearance_m",
+        "max_bound_violation",
+        "solve_ms_median",
+        "solve_ms_p95",
+        "solve_ms_max",
+        "steps",
+        "solver_failures",
+    ):
         assert key in summary, key
     assert summary["steps"] == 180
 
@@ -138,8 +148,14 @@ def _pngs(d):
 def test_every_figure_is_produced_and_replotting_reproduces_them(planar, tmp_path):
     from aeromanip.cli import main
 
-    expected_single = {"ee_tracking.png", "commands.png", "joints.png", "platform.png",
-                       "cog_offset.png", "solve_time.png"}
+    expected_single = {
+        "ee_tracking.png",
+        "commands.png",
+        "joints.png",
+        "platform.png",
+        "cog_offset.png",
+        "solve_time.png",
+    }
     for v in ("cond-off", "cond-default", "cond-high"):
         assert expected_single <= set(_pngs(planar / v))
     assert {"condition.png", "paths_3d.png", "comparison_errors.png"} <= set(_pngs(planar))
@@ -159,8 +175,7 @@ def test_every_figure_is_produced_and_replotting_reproduces_them(planar, tmp_pat
 
 def test_config_toml_reproduces_the_run(tmp_path):
     first = tmp_path / "first"
-    run_scenarios(load_scenarios("flight", ["duration=10"]), first, progress=False,
-                  figures=False)
+    run_scenarios(load_scenarios("flight", ["duration=10"]), first, progress=False, figures=False)
     again = tmp_path / "again"
     run_scenarios(load_scenarios(first / "config.toml"), again, progress=False, figures=False)
     a, b = RunLog.load(first), RunLog.load(again)
@@ -170,8 +185,9 @@ def test_config_toml_reproduces_the_run(tmp_path):
 
 def test_a_scenario_extends_another_key_by_key(tmp_path):
     mine = tmp_path / "mine.toml"
-    mine.write_text('extends = "flight"\nname = "mine"\nduration = 12.0\n'
-                    "[controller]\nhorizon = 6\n")
+    mine.write_text(
+        'extends = "flight"\nname = "mine"\nduration = 12.0\n[controller]\nhorizon = 6\n'
+    )
     sc = load_scenarios(mine)[""]
     flight = load_scenarios("flight")[""]
     assert (sc.name, sc.duration, sc.problem.horizon) == ("mine", 12.0, 6)
@@ -184,9 +200,11 @@ def test_a_scenario_extends_another_key_by_key(tmp_path):
     robot_toml = resources.files("aeromanip") / "robots" / "x8-3dof.toml"
     (parent_dir / "myrobot.toml").write_text(robot_toml.read_text())
     (parent_dir / "parent.toml").write_text(
-        'extends = "flight"\nname = "parent"\nrobot = "myrobot.toml"\n')
+        'extends = "flight"\nname = "parent"\nrobot = "myrobot.toml"\n'
+    )
     (child_dir / "child.toml").write_text(
-        'extends = "../p/parent.toml"\nname = "child"\nduration = 3.0\n')
+        'extends = "../p/parent.toml"\nname = "child"\nduration = 3.0\n'
+    )
     child = load_scenarios(child_dir / "child.toml")[""]
     assert child.robot.name == flight.robot.name and child.duration == 3.0
     # a cycle is a clear error, not a recursion
@@ -199,8 +217,8 @@ def test_a_scenario_extends_another_key_by_key(tmp_path):
 
 
 def test_clearance_margin_plans_inside_the_true_limit():
-    from aeromanip.constraints import Clearance
     from aeromanip.errors import ConfigError
+    from aeromanip.nmpc.constraints import Clearance
 
     sc = load_scenarios("flight")[""]
     planned = [c for c in sc.problem.constraints if isinstance(c, Clearance)]

@@ -1,17 +1,15 @@
 """The ``sqp`` backend against independent truth (IPOPT on the same NLP), RTI, codegen."""
 
-import casadi as ca
 import numpy as np
 import pytest
 
-from aeromanip.codegen import compiled
-from aeromanip.constraints import Bounds, Clearance
-from aeromanip.controller import Controller
 from aeromanip.errors import ConfigError
-from aeromanip.ocp import Problem
+from aeromanip.nmpc.constraints import Bounds, Clearance
+from aeromanip.nmpc.controller import Controller
+from aeromanip.nmpc.problem import Problem
+from aeromanip.nmpc.strategies import Hierarchical, Weighted
 from aeromanip.references import Constant
 from aeromanip.robot.loader import load_robot
-from aeromanip.strategies import Hierarchical, Weighted
 from aeromanip.tasks import CogAlignment, ControlRate, EndEffectorTracking
 
 X8 = load_robot("x8-3dof")
@@ -156,45 +154,10 @@ def test_bad_options_are_config_errors():
         Controller(pb, "weighted", "sqp", {**FAST, "hessian": "bfgs"})
 
 
-def test_compiled_functions_are_cached_and_agree(tmp_path, monkeypatch):
-    monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
-    x = ca.SX.sym("x", 3)
-    f = ca.Function("aeromanip_test_f", [x], [ca.sin(x) * ca.sumsqr(x), ca.jacobian(x**3, x)])
-    g = compiled(f)
-    libs = list(tmp_path.glob("aeromanip_test_f-*.so"))
-    assert len(libs) == 1
-    v = np.array([0.3, -1.2, 2.0])
-    for a, b in zip(f(v), g(v), strict=True):
-        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-14, atol=1e-14)
-    mtime = libs[0].stat().st_mtime_ns
-    compiled(f)  # the same Function again: loaded, not rebuilt
-    assert libs[0].stat().st_mtime_ns == mtime
-    assert len(list(tmp_path.glob("*.so"))) == 1
-
-
-def test_compiled_sqp_matches_in_process(tmp_path, monkeypatch):
-    monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
-    pb = make_problem(levels=(0, 0), horizon=3)
-    a = Controller(pb, "weighted", "sqp").step(X0, 0.0)
-    b = Controller(pb, "weighted", "sqp", FAST).step(X0, 0.0)
-    assert list(tmp_path.glob("*.so"))
-    np.testing.assert_allclose(a.plan_u, b.plan_u, atol=1e-9)
-
-
 def test_hierarchical_sqp_strategy_keeps_level_order():
     pb = make_problem()
     h = Hierarchical(pb, backend="sqp", options=FAST)
-    assert [len(st.entries) for st in h.stages] == [1, 1]
-
-
-@pytest.mark.parametrize("cc", ["false", "no-such-compiler-xyz"])
-def test_without_a_working_compiler_functions_run_in_process(tmp_path, monkeypatch, cc):
-    monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
-    monkeypatch.setenv("CC", cc)
-    x = ca.SX.sym("x", 2)
-    f = ca.Function("aeromanip_test_cc", [x], [ca.sumsqr(x)])
-    assert compiled(f) is f
-    assert not list(tmp_path.iterdir())  # no library, no leftover build directory
+    assert [len(st.entries) for st in h.solvers] == [1, 1]
 
 
 def test_residual_mode_keeps_the_primary_optimum_and_improves_the_secondary():
@@ -218,7 +181,7 @@ def test_residual_mode_keeps_the_primary_optimum_and_improves_the_secondary():
 def test_convexified_hessian_keeps_the_step_on_the_active_set():
     """Indefinite H, positive definite on null(C): the penalty makes it positive definite
     and the equality-constrained QP's step is that of the exact H (KKT solved directly)."""
-    from aeromanip.sqp import _convexified
+    from aeromanip.nmpc.backends.kkt import convexified
 
     rng = np.random.default_rng(3)
     n, m = 8, 3
@@ -234,11 +197,11 @@ def test_convexified_hessian_keeps_the_step_on_the_active_set():
         K = np.block([[Hm, C.T], [C, np.zeros((m, m))]])
         return np.linalg.solve(K, np.concatenate([-g, r]))[:n]
 
-    Hc = _convexified(H, C, np.zeros(0, dtype=int))
+    Hc = convexified(H, C, np.zeros(0, dtype=int))
     assert np.linalg.eigvalsh(Hc).min() > 0.0
     np.testing.assert_allclose(kkt_step(Hc), kkt_step(H), atol=1e-9)
     P = np.eye(n) * 2.0
-    assert _convexified(P, C, np.zeros(0, dtype=int)) is P  # already convex: unchanged
+    assert convexified(P, C, np.zeros(0, dtype=int)) is P  # already convex: unchanged
 
 
 @pytest.mark.parametrize("strategy", ["weighted", "hierarchical"])
@@ -258,8 +221,8 @@ def test_acceptable_level_ends_a_solve_that_cannot_reach_tol(strategy):
 def test_multiplier_shift_maps_each_row_to_its_twin_one_stage_on(mode):
     """The NLP's and the SQP's shift maps: a row moves to the row of the same kind and
     place one stage on (never across kinds); rows without a twin keep their place."""
-    from aeromanip.ocp import Transcription
-    from aeromanip.sqp import SqpBackend
+    from aeromanip.nmpc.backends.sqp import SqpBackend
+    from aeromanip.nmpc.transcription import Transcription
 
     pb = make_problem()
     higher = [[e for e in pb.entries if e.level == 0]]

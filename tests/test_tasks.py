@@ -4,9 +4,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from aeromanip.controller import Controller
 from aeromanip.errors import AeromanipError, ConfigError
-from aeromanip.ocp import Problem
+from aeromanip.nmpc.controller import Controller
+from aeromanip.nmpc.problem import Problem
 from aeromanip.references import Constant
 from aeromanip.robot.kinematics import Kinematics
 from aeromanip.robot.loader import load_robot

@@ -13,12 +13,8 @@ import pytest
 from aeromanip.errors import ConfigError
 from aeromanip.robot.loader import load_robot
 from aeromanip.robot.spec import Inertial, Joint, Platform, RobotSpec
-from aeromanip.robot.urdf import (
-    UrdfArm,
-    arm_from_urdf,
-    arm_from_urdf_string,
-    robot_to_urdf,
-)
+from aeromanip.robot.urdf import UrdfArm, arm_from_urdf, arm_from_urdf_string
+from aeromanip.robot.urdf_export import robot_to_urdf
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data"

@@ -5,14 +5,15 @@ ICUAS 2017: a kinematic UAM model, task costs composed by weights or as a strict
 hierarchy, bounds and self-collision constraints, solved in a receding horizon.
 """
 
-from aeromanip.constraints import Bounds, Clearance, PathConstraint, UserConstraint
-from aeromanip.controller import Command, Controller
 from aeromanip.errors import AeromanipError, ConfigError, InfeasibleProblemError, StateError
-from aeromanip.ocp import Problem
+from aeromanip.nmpc.constraints import Bounds, Clearance, PathConstraint, UserConstraint
+from aeromanip.nmpc.controller import Command, Controller
+from aeromanip.nmpc.problem import Problem
 from aeromanip.robot.kinematics import Kinematics
 from aeromanip.robot.loader import builtin_robots, load_robot, robot_from_table
 from aeromanip.robot.spec import Inertial, Joint, Platform, RobotSpec
-from aeromanip.robot.urdf import arm_from_urdf, robot_to_urdf
+from aeromanip.robot.urdf import arm_from_urdf
+from aeromanip.robot.urdf_export import robot_to_urdf
 from aeromanip.tasks import (
     CogAlignment,
     CogVelocity,

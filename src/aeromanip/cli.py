@@ -17,8 +17,8 @@ from aeromanip.errors import AeromanipError, ConfigError
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
+    from aeromanip.experiment.scenario import builtin_scenarios
     from aeromanip.robot.loader import builtin_robots
-    from aeromanip.scenario import builtin_scenarios
 
     print("scenarios:")
     for name, text in builtin_scenarios().items():
@@ -61,8 +61,8 @@ def _format_summary(summaries: dict[str, dict]) -> str:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from aeromanip.runner import run_scenarios
-    from aeromanip.scenario import load_scenarios
+    from aeromanip.experiment.runner import run_scenarios
+    from aeromanip.experiment.scenario import load_scenarios
 
     scenarios = load_scenarios(args.scenario, args.set or [], args.variant)
     first = next(iter(scenarios.values()))
@@ -86,8 +86,8 @@ def _run_order(root: Path) -> list[str]:
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
-    from aeromanip.plots import plot_comparison, plot_run
-    from aeromanip.runlog import LOG_FILE, RunLog
+    from aeromanip.experiment.plots import plot_comparison, plot_run
+    from aeromanip.experiment.runlog import LOG_FILE, RunLog
 
     root = Path(args.dir)
     if (root / LOG_FILE).is_file():

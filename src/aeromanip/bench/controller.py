@@ -32,14 +32,14 @@ import casadi as ca
 import numpy as np
 
 from aeromanip.bench.shadow import REF_OPTIONS, IpoptHierarchyShadow, IpoptShadow
-from aeromanip.codegen import limit_blas_threads
-from aeromanip.controller import Controller
-from aeromanip.ocp import Problem, Transcription
-from aeromanip.scenario import Scenario, load_scenarios
-from aeromanip.strategies import Weighted
+from aeromanip.experiment.scenario import Scenario, load_scenarios
+from aeromanip.nmpc.backends.codegen import limit_blas_threads
+from aeromanip.nmpc.controller import Controller
+from aeromanip.nmpc.problem import Problem
+from aeromanip.nmpc.strategies import Weighted
+from aeromanip.nmpc.transcription import Transcription
 
 FAST = 25.0  # reference speed-up of the constrained variant: velocity bounds bind
-FLIGHT_FREQ = (0.0125, 0.0091, 0.0067)  # Hz, flight.toml's Lissajous frequencies
 
 
 # name: (scenario kind, strategy ("residual": hierarchical, mode "residual"), backend,
@@ -93,9 +93,12 @@ class PlainIpopt:
 
 def _scenario(kind: str, duration: float) -> Scenario:
     sets = [f"duration={duration}"]
-    if kind == "fast":
-        sets.append(f"reference.frequency={[FAST * f for f in FLIGHT_FREQ]}")
-    return load_scenarios("flight", sets)[""]
+    sc = load_scenarios("flight", sets)[""]
+    if kind == "fast":  # the flight's Lissajous frequencies [Hz], FAST times higher
+        freq = sc.resolved["reference"]["frequency"]
+        fast = f"reference.frequency={[FAST * f for f in freq]}"
+        sc = load_scenarios("flight", [*sets, fast])[""]
+    return sc
 
 
 def _stepper(
@@ -131,53 +134,16 @@ def run_variant(
     """Closed loop of one variant: timing [ms], iterations, tracking and cost; with
     ``shadowed`` (a converged backend) also the IPOPT shadow's summary."""
     sc = _scenario(kind, duration)
-    pb, dt = sc.problem, sc.problem.dt
     ctrl, step = _stepper(sc, strategy, backend, options)
     x = sc.x0.copy()
     for k in range(warmup):  # compile, load, fill caches; then start afresh
-        step(x, k * dt)
+        step(x, k * sc.problem.dt)
     ctrl.reset()
     shadow = None
     if shadowed:
         weighted = isinstance(ctrl.strategy, Weighted)
         shadow = IpoptShadow(ctrl) if weighted else IpoptHierarchyShadow(ctrl)
-    tr = Transcription(pb, pb.entries)
-    b = pb.bounds
-    xs, us, ts, its, fails = [], [], [], [], 0
-    for k in range(sc.steps):
-        seen = shadow.before(x, k * dt) if shadow else None
-        t0 = time.perf_counter()
-        u, it, ok = step(x, k * dt)
-        ts.append(time.perf_counter() - t0)
-        if shadow and seen is not None:  # outside the timed region
-            shadow.after(*seen, step.last)  # type: ignore[attr-defined]
-        xs.append(x)
-        us.append(u)
-        its.append(it)
-        fails += not ok
-        x = x + dt * u
-    X, U = np.array(xs), np.array(us)
-    times = dt * np.arange(len(X))
-    ee = np.array([np.asarray(pb.kin.ee_position(xk)).ravel() for xk in X])
-    ref = np.asarray(sc.reference.sample(times))
-    err = np.linalg.norm(ee - ref, axis=1)
-    P = np.vstack([pb.stage_params(t)[0] for t in times])
-    V = np.vstack([np.zeros(pb.kin.nx), U[:-1]])
-    cost = sum(
-        float(np.asarray(tr.f_stage(np.concatenate([X[k], V[k]]), U[k], P[k])[3]).sum())
-        for k in range(len(X))
-    )
-    clear = pb.kin.clearance()
-    d_min = sc.clearance.d_min if sc.clearance is not None else -np.inf
-    viol = max(
-        float(np.max(b.x_lower - X)),
-        float(np.max(X - b.x_upper)),
-        float(np.max(b.u_lower - U)),
-        float(np.max(U - b.u_upper)),
-        max(float(d_min - np.min(np.asarray(clear(xk)))) for xk in X),
-        0.0,
-    )
-    active = np.any(np.isclose(U, b.u_lower, atol=1e-5) | np.isclose(U, b.u_upper, atol=1e-5), 1)
+    X, U, ts, its, fails = _closed_loop(sc, step, shadow)
     ms = 1e3 * np.array(ts)
     return {
         "scenario": sc.name + (f" (reference x{FAST:g})" if kind == "fast" else ""),
@@ -191,12 +157,65 @@ def run_variant(
         "iterations_mean": float(np.mean(its)),
         "iterations_max": int(np.max(its)),
         "failures": int(fails),
+        **_score(sc, X, U),
+        "commands": U.tolist(),
+        **(shadow.summary() if shadow else {}),
+    }
+
+
+def _closed_loop(
+    sc: Scenario, step: Callable, shadow: IpoptShadow | IpoptHierarchyShadow | None
+) -> tuple[np.ndarray, np.ndarray, list[float], list[int], int]:
+    """The ideal loop ``x <- x + dt u``: states, commands, step times [s], iterations and
+    failures; the shadow (if any) solves outside the timed region."""
+    dt, x = sc.problem.dt, sc.x0.copy()
+    xs, us, ts, its, fails = [], [], [], [], 0
+    for k in range(sc.steps):
+        seen = shadow.before(x, k * dt) if shadow else None
+        t0 = time.perf_counter()
+        u, it, ok = step(x, k * dt)
+        ts.append(time.perf_counter() - t0)
+        if shadow and seen is not None:
+            shadow.after(*seen, step.last)  # type: ignore[attr-defined]
+        xs.append(x)
+        us.append(u)
+        its.append(it)
+        fails += not ok
+        x = x + dt * u
+    return np.array(xs), np.array(us), ts, its, fails
+
+
+def _score(sc: Scenario, X: np.ndarray, U: np.ndarray) -> dict[str, float]:
+    """Tracking RMSE, the closed-loop cost (every task's weighted stage cost along the
+    flown trajectory), the largest bound violation and the share of steps at a
+    velocity bound."""
+    pb, b = sc.problem, sc.problem.bounds
+    times = pb.dt * np.arange(len(X))
+    ee = np.array([np.asarray(pb.kin.ee_position(xk)).ravel() for xk in X])
+    err = np.linalg.norm(ee - np.asarray(sc.reference.sample(times)), axis=1)
+    tr = Transcription(pb, pb.entries)
+    P = np.vstack([pb.stage_params(t)[0] for t in times])
+    V = np.vstack([np.zeros(pb.kin.nx), U[:-1]])
+    cost = sum(
+        float(np.asarray(tr.stage_model.cost(np.concatenate([X[k], V[k]]), U[k], P[k])[3]).sum())
+        for k in range(len(X))
+    )
+    clear = pb.kin.clearance()
+    d_min = sc.clearance.d_min if sc.clearance is not None else -np.inf
+    viol = max(
+        float(np.max(b.x_lower - X)),
+        float(np.max(X - b.x_upper)),
+        float(np.max(b.u_lower - U)),
+        float(np.max(U - b.u_upper)),
+        max(float(d_min - np.min(np.asarray(clear(xk)))) for xk in X),
+        0.0,
+    )
+    active = np.any(np.isclose(U, b.u_lower, atol=1e-5) | np.isclose(U, b.u_upper, atol=1e-5), 1)
+    return {
         "ee_rmse_m": float(np.sqrt(np.mean(err**2))),
         "closed_loop_cost": cost,
         "max_bound_violation": viol,
         "velocity_bound_active_share": float(np.mean(active)),
-        "commands": U.tolist(),
-        **(shadow.summary() if shadow else {}),
     }
 
 

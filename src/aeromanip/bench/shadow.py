@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from aeromanip.controller import Command, Controller
-from aeromanip.solvers import make_backend
-from aeromanip.strategies import Hierarchical
+from aeromanip.nmpc.backends.base import make_backend
+from aeromanip.nmpc.controller import Command, Controller
+from aeromanip.nmpc.strategies import Hierarchical
 
 REF_OPTIONS = {"ipopt.tol": 1e-10}  # the reference answers: IPOPT converged tightly
 # restarted at an answer, IPOPT's barrier must start small or it leaves the answer
@@ -35,7 +35,7 @@ class IpoptShadow:
 
     def __init__(self, ctrl: Controller) -> None:
         self.ctrl = ctrl
-        self.stage = ctrl.strategy.stages[0]
+        self.stage = ctrl.strategy.solvers[0]
         self.ipopt = make_backend(self.stage.tr, "ipopt", REF_OPTIONS)
         # restarted at an answer, IPOPT's barrier must start small or it leaves the answer
         self.restart = make_backend(self.stage.tr, "ipopt", {**REF_OPTIONS, **RESTART})
@@ -46,7 +46,7 @@ class IpoptShadow:
         """The NLP's parameters and the controller's initial guesses, before its step."""
         c = self.ctrl
         p = self.stage.tr.parameters(x, c.u_prev, c.problem.stage_params(t))
-        return p, c._guesses(x)
+        return p, c.initial_guesses(x)
 
     def after(self, p: np.ndarray, guesses: list, cmd: Command) -> None:
         """Solve with IPOPT and record the differences (commands [rad/s, m/s], costs)."""
@@ -113,7 +113,7 @@ class IpoptHierarchyShadow:
         """The parameters and the controller's initial guesses, before its step."""
         c = self.ctrl
         tr = c.strategy.transcription
-        return tr.parameters(x, c.u_prev, c.problem.stage_params(t)), c._guesses(x)
+        return tr.parameters(x, c.u_prev, c.problem.stage_params(t)), c.initial_guesses(x)
 
     def after(self, p: np.ndarray, guesses: list, cmd: Command) -> None:
         """Solve the hierarchy with IPOPT; record the command difference and which

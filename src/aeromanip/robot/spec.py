@@ -159,37 +159,7 @@ def validate(spec: RobotSpec) -> None:
     Key paths are those of the robot TOML format (``joints[1].axis``, ``end_effector.xyz``),
     relative to the robot table; ``robot_from_table`` adds the table's prefix and file.
     """
-    dofs = spec.platform.dofs
-    for i, d in enumerate(dofs):
-        if d not in PLATFORM_DOFS:
-            raise ConfigError(
-                f"platform.dofs[{i}]: unknown platform DoF {d!r} (choose from {PLATFORM_DOFS})"
-            )
-    if list(dofs) != [d for d in PLATFORM_DOFS if d in dofs]:
-        raise ConfigError(f"platform.dofs: must be unique and in the order {PLATFORM_DOFS}")
-    for k, v in spec.platform.fixed.items():
-        if k not in PLATFORM_DOFS:
-            raise ConfigError(f"platform.fixed.{k}: unknown platform DoF")
-        if k in dofs:
-            raise ConfigError(f"platform.fixed.{k}: DoF is active, it cannot also be fixed")
-        _finite(v, f"platform.fixed.{k}")
-    for k, v in spec.platform.velocity.items():
-        if k not in PLATFORM_DOFS:
-            raise ConfigError(f"platform.velocity.{k}: unknown platform DoF")
-        if not (v > 0 and math.isfinite(v)):
-            raise ConfigError(f"platform.velocity.{k}: must be a finite number > 0, got {v}")
-    if not spec.platform.mass > 0:
-        raise ConfigError(f"platform.mass: must be > 0, got {spec.platform.mass}")
-    _vec(spec.platform.inertia, "platform.inertia")
-    if min(spec.platform.inertia) <= 0:
-        raise ConfigError("platform.inertia: every entry must be > 0")
-    if not spec.platform.arm_length > 0:
-        raise ConfigError(f"platform.arm_length: must be > 0, got {spec.platform.arm_length}")
-    n, coaxial = spec.platform.rotors, spec.platform.coaxial
-    if isinstance(n, bool) or not isinstance(n, int) or n < 4 or n % 2:
-        raise ConfigError(f"platform.rotors: must be an even integer >= 4, got {n!r}")
-    if coaxial and (n % 4 or n < 8):
-        raise ConfigError(f"platform.rotors: coaxial pairs need a multiple of 4, >= 8, got {n}")
+    _validate_platform(spec.platform)
     if not spec.joints:
         raise ConfigError("joints: the arm needs at least one joint")
     for attr, key in _FRAME_KEYS.items():
@@ -198,26 +168,7 @@ def validate(spec: RobotSpec) -> None:
     joint_names: set[str] = set()
     for i, j in enumerate(spec.joints):
         p = f"joints[{i}]"
-        for key in ("xyz", "rpy", "axis"):
-            _vec(getattr(j, key), f"{p}.{key}")
-        norm = math.sqrt(sum(a * a for a in j.axis))
-        if norm < 1e-9:
-            raise ConfigError(f"{p}.axis: must be non-zero, got {list(j.axis)}")
-        if abs(norm - 1.0) > 1e-6:
-            raise ConfigError(f"{p}.axis: must be a unit vector, got norm {norm:.6g}")
-        if math.isnan(j.lower) or math.isnan(j.upper):
-            raise ConfigError(f"{p}.limits: must be numbers")
-        if j.lower > j.upper:
-            raise ConfigError(f"{p}.limits: lower {j.lower} is above upper {j.upper}")
-        if not (j.velocity > 0 and math.isfinite(j.velocity)):
-            raise ConfigError(f"{p}.velocity: must be a finite number > 0, got {j.velocity}")
-        if not (j.link.mass >= 0 and math.isfinite(j.link.mass)):
-            raise ConfigError(f"{p}.link.mass: must be >= 0, got {j.link.mass}")
-        _vec(j.link.com, f"{p}.link.com")
-        if len(j.link.inertia) != 6:
-            raise ConfigError(f"{p}.link.inertia: must be [ixx, iyy, izz, ixy, ixz, iyz]")
-        if min(j.link.inertia[:3]) < 0:
-            raise ConfigError(f"{p}.link.inertia: diagonal entries must be >= 0")
+        _validate_joint(j, p)
         for nm, key, names in (
             (j.name, "name", joint_names),
             (j.link_name, "link.name", link_names),
@@ -229,3 +180,62 @@ def validate(spec: RobotSpec) -> None:
             names.add(nm)
     if spec.arm_mass <= 0:
         raise ConfigError("joints[*].link.mass: the arm must have a positive total mass")
+
+
+def _validate_platform(pf: Platform) -> None:
+    """The ``[platform]`` table: DoFs, fixed values, velocities, mass, inertia, rotors."""
+    dofs = pf.dofs
+    for i, d in enumerate(dofs):
+        if d not in PLATFORM_DOFS:
+            raise ConfigError(
+                f"platform.dofs[{i}]: unknown platform DoF {d!r} (choose from {PLATFORM_DOFS})"
+            )
+    if list(dofs) != [d for d in PLATFORM_DOFS if d in dofs]:
+        raise ConfigError(f"platform.dofs: must be unique and in the order {PLATFORM_DOFS}")
+    for k, v in pf.fixed.items():
+        if k not in PLATFORM_DOFS:
+            raise ConfigError(f"platform.fixed.{k}: unknown platform DoF")
+        if k in dofs:
+            raise ConfigError(f"platform.fixed.{k}: DoF is active, it cannot also be fixed")
+        _finite(v, f"platform.fixed.{k}")
+    for k, v in pf.velocity.items():
+        if k not in PLATFORM_DOFS:
+            raise ConfigError(f"platform.velocity.{k}: unknown platform DoF")
+        if not (v > 0 and math.isfinite(v)):
+            raise ConfigError(f"platform.velocity.{k}: must be a finite number > 0, got {v}")
+    if not pf.mass > 0:
+        raise ConfigError(f"platform.mass: must be > 0, got {pf.mass}")
+    _vec(pf.inertia, "platform.inertia")
+    if min(pf.inertia) <= 0:
+        raise ConfigError("platform.inertia: every entry must be > 0")
+    if not pf.arm_length > 0:
+        raise ConfigError(f"platform.arm_length: must be > 0, got {pf.arm_length}")
+    n = pf.rotors
+    if isinstance(n, bool) or not isinstance(n, int) or n < 4 or n % 2:
+        raise ConfigError(f"platform.rotors: must be an even integer >= 4, got {n!r}")
+    if pf.coaxial and (n % 4 or n < 8):
+        raise ConfigError(f"platform.rotors: coaxial pairs need a multiple of 4, >= 8, got {n}")
+
+
+def _validate_joint(j: Joint, p: str) -> None:
+    """One ``[[joints]]`` entry (key path ``p``): frames, axis, limits, link inertia."""
+    for key in ("xyz", "rpy", "axis"):
+        _vec(getattr(j, key), f"{p}.{key}")
+    norm = math.sqrt(sum(a * a for a in j.axis))
+    if norm < 1e-9:
+        raise ConfigError(f"{p}.axis: must be non-zero, got {list(j.axis)}")
+    if abs(norm - 1.0) > 1e-6:
+        raise ConfigError(f"{p}.axis: must be a unit vector, got norm {norm:.6g}")
+    if math.isnan(j.lower) or math.isnan(j.upper):
+        raise ConfigError(f"{p}.limits: must be numbers")
+    if j.lower > j.upper:
+        raise ConfigError(f"{p}.limits: lower {j.lower} is above upper {j.upper}")
+    if not (j.velocity > 0 and math.isfinite(j.velocity)):
+        raise ConfigError(f"{p}.velocity: must be a finite number > 0, got {j.velocity}")
+    if not (j.link.mass >= 0 and math.isfinite(j.link.mass)):
+        raise ConfigError(f"{p}.link.mass: must be >= 0, got {j.link.mass}")
+    _vec(j.link.com, f"{p}.link.com")
+    if len(j.link.inertia) != 6:
+        raise ConfigError(f"{p}.link.inertia: must be [ixx, iyy, izz, ixy, ixz, iyz]")
+    if min(j.link.inertia[:3]) < 0:
+        raise ConfigError(f"{p}.link.inertia: diagonal entries must be >= 0")

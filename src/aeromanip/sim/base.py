@@ -9,12 +9,35 @@ the physics simulator flies the full dynamics with a flight controller.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
+from aeromanip.errors import ConfigError
+from aeromanip.registry import Registry
+from aeromanip.robot.spec import RobotSpec
+
+GRAVITY = 9.81  # [m/s^2] the simulated world's gravity (along -z, world ENU)
+
 
 class Simulator(ABC):
-    """One verb per control period: ``advance(u, plan_x, dt)``."""
+    """One verb per control period: ``advance(u, plan_x, dt)``.
+
+    Simulators are registered by name in ``SIMULATORS`` (one module each); a scenario's
+    ``sim`` names one, or a subclass of your own as ``"package.module:Class"``.
+    """
+
+    kind: str = "simulator"
+    #: the scenario table holding this simulator's options (``None``: it takes none)
+    options_table: str | None = None
+
+    @classmethod
+    def from_options(cls, spec: RobotSpec, options: Mapping[str, Any]) -> Simulator:
+        """Build for ``spec`` from its options table (see ``options_table``)."""
+        if options:
+            raise ConfigError(f"{cls.kind}: takes no options, got {sorted(options)}")
+        return cls(spec)  # type: ignore[call-arg]
 
     #: keys of ``extras()`` that are values at the current instant (the others are means
     #: over the period the last ``advance`` flew)
@@ -44,3 +67,6 @@ class Simulator(ABC):
     def extras(self) -> dict[str, float]:
         """Extra logged quantities (e.g. ``roll``, ``pitch`` in physics); none by default."""
         return {}
+
+
+SIMULATORS: Registry[Simulator] = Registry("simulator", "aeromanip.sim", Simulator)

@@ -35,8 +35,7 @@ from typing import Any
 import numpy as np
 
 from aeromanip.errors import ConfigError
-
-GRAVITY = 9.81  # [m/s^2]
+from aeromanip.sim.base import GRAVITY
 
 Vec3 = tuple[float, float, float]
 

@@ -5,14 +5,17 @@ from __future__ import annotations
 import numpy as np
 
 from aeromanip.errors import StateError
-from aeromanip.sim.base import Simulator
+from aeromanip.robot.spec import RobotSpec
+from aeromanip.sim.base import SIMULATORS, Simulator
 
 
+@SIMULATORS.register("kinematic")
 class KinematicSimulator(Simulator):
     """``x <- x + dt u``: the NMPC model itself, a perfect tracking inner loop."""
 
-    def __init__(self, nx: int) -> None:
-        self.nx = nx
+    def __init__(self, spec: RobotSpec) -> None:
+        self.spec = spec
+        self.nx = nx = spec.nx
         self.x = np.zeros(nx)
 
     def reset(self, x0: np.ndarray) -> None:

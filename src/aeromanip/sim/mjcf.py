@@ -39,11 +39,11 @@ import numpy as np
 
 from aeromanip.errors import ConfigError
 from aeromanip.robot.spec import PLATFORM_DOFS, Inertial, RobotSpec
+from aeromanip.sim.base import GRAVITY
 from aeromanip.sim.flight_controller import rotor_layout
 
 K_M = 0.016  # [m] rotor reaction torque per newton of thrust
 THRUST_TO_WEIGHT = 2.0  # total max thrust / total weight
-GRAVITY = 9.81  # [m/s^2]
 ARMATURE = 2e-3  # [kg m^2] reflected servo rotor inertia per arm joint
 SERVO_HZ = 8.0  # [Hz] default servo natural frequency at the largest joint inertia
 SERVO_DAMPING = 0.9  # servo damping ratio at that inertia
@@ -168,17 +168,32 @@ def robot_to_mjcf(
     rotors = spec.platform.rotors if rotors is None else rotors
     if isinstance(rotors, bool) or not isinstance(rotors, int) or rotors < 4 or rotors % 2:
         raise ConfigError(f"physics.rotors: must be an even integer >= 4, got {rotors!r}")
-    coaxial = spec.platform.coaxial
     if not (timestep > 0 and math.isfinite(timestep)):
         raise ConfigError(f"physics.rate_hz: physics step must be > 0, got {timestep}")
-    L = spec.platform.arm_length
-    positions, spins = rotor_layout(rotors, L, coaxial)
-    f_max = max_rotor_thrust(spec, rotors)
+    positions, spins = rotor_layout(rotors, spec.platform.arm_length, spec.platform.coaxial)
+    gains = servo_gains(spec, servo_hz, servo_damping)
     fixed = {d: float(spec.platform.fixed.get(d, 0.0)) for d in PLATFORM_DOFS}
     start = (fixed["x"], fixed["y"], float(spec.platform.fixed.get("z", 1.0)))
-    disc = 0.9 * L * math.sin(math.pi / (rotors // 2 if coaxial else rotors))
     lines = [
-        f"<mujoco model={quoteattr(spec.name)}>",
+        *_header(spec.name, timestep),
+        "  <worldbody>",
+        '    <light name="sun" pos="0 0 6" dir="0 0 -1" directional="true"/>',
+        '    <geom name="ground" type="plane" size="20 20 0.1" material="grid"/>',
+        *_platform(spec, positions, spins, start, fixed["yaw"]),
+        *_arm(spec),
+        "    </body>",
+        "  </worldbody>",
+        *_actuators(spec, spins, max_rotor_thrust(spec, rotors), gains),
+        *_keyframe(spec, start, fixed["yaw"], rotors),
+        "</mujoco>",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _header(name: str, timestep: float) -> list[str]:
+    """Model, compiler, physics options, visual quality, defaults and the floor texture."""
+    return [
+        f"<mujoco model={quoteattr(name)}>",
         '  <compiler angle="radian" autolimits="true" inertiafromgeom="false" '
         'balanceinertia="true"/>',
         f'  <option timestep="{_f(timestep)}" gravity="0 0 {_f(-GRAVITY)}" '
@@ -195,11 +210,23 @@ def robot_to_mjcf(
         'rgb1="0.25 0.3 0.35" rgb2="0.35 0.4 0.45"/>',
         '    <material name="grid" texture="grid" texrepeat="8 8" reflectance="0.1"/>',
         "  </asset>",
-        "  <worldbody>",
-        '    <light name="sun" pos="0 0 6" dir="0 0 -1" directional="true"/>',
-        '    <geom name="ground" type="plane" size="20 20 0.1" material="grid"/>',
+    ]
+
+
+def _platform(
+    spec: RobotSpec,
+    positions: np.ndarray,
+    spins: np.ndarray,
+    start: tuple[float, float, float],
+    yaw: float,
+) -> list[str]:
+    """The base body (left open: the arm goes inside it): free joint, inertia, a chase
+    camera, the hub, and per rotor its frame arm, disc and thrust site."""
+    L, rotors, coaxial = spec.platform.arm_length, len(spins), spec.platform.coaxial
+    disc = 0.9 * L * math.sin(math.pi / (rotors // 2 if coaxial else rotors))
+    lines = [
         f'    <body name={quoteattr(spec.base_link)} pos="{_v(start)}" '
-        f'quat="{_quat((0.0, 0.0, fixed["yaw"]))}">',
+        f'quat="{_quat((0.0, 0.0, yaw))}">',
         f'      <freejoint name="{FREE_JOINT}"/>',
         f'      <inertial pos="0 0 0" mass="{_f(spec.platform.mass)}" '
         f'diaginertia="{_v(spec.platform.inertia)}"/>',
@@ -219,12 +246,16 @@ def robot_to_mjcf(
             f'pos="{_v((p[0], p[1], height))}" rgba="{color}"/>',
             f'      <site name="rotor_{i + 1}" pos="{_v(tip)}" size="0.01"/>',
         ]
+    return lines
+
+
+def _arm(spec: RobotSpec) -> list[str]:
+    """The mount and the chain of link bodies with their hinges, ending in the EE site."""
     indent = "      "
-    lines.append(
+    lines = [
         f'{indent}<body name="{MOUNT_BODY}" pos="{_v(spec.mount_xyz)}" '
         f'quat="{_quat(spec.mount_rpy)}">'
-    )
-    gains = servo_gains(spec, servo_hz, servo_damping)
+    ]
     closing = ["      </body>"]
     for k, j in enumerate(spec.joints):
         indent += "  "
@@ -247,8 +278,14 @@ def robot_to_mjcf(
         f'{indent}  <site name={quoteattr(spec.ee_link)} pos="{_v(spec.ee_xyz)}" '
         f'quat="{_quat(spec.ee_rpy)}" size="0.015" rgba="1 0.1 0.1 1" group="1"/>'
     )
-    lines += closing
-    lines += ["    </body>", "  </worldbody>", "  <actuator>"]
+    return lines + closing
+
+
+def _actuators(
+    spec: RobotSpec, spins: np.ndarray, f_max: float, gains: list[tuple[float, float]]
+) -> list[str]:
+    """One thrust motor per rotor site (with its reaction torque), one servo per joint."""
+    lines = ["  <actuator>"]
     for i, s in enumerate(spins):
         lines.append(
             f'    <motor name="rotor_{i + 1}" site="rotor_{i + 1}" '
@@ -259,14 +296,18 @@ def robot_to_mjcf(
             f"    <position name={quoteattr('servo_' + j.name)} joint={quoteattr(j.name)} "
             f'kp="{_f(kp)}" kv="{_f(kv)}"/>'
         )
+    return [*lines, "  </actuator>"]
+
+
+def _keyframe(
+    spec: RobotSpec, start: tuple[float, float, float], yaw: float, rotors: int
+) -> list[str]:
+    """The ``hover`` keyframe: at the start pose, every rotor at ``m g / n``."""
     hover = total_mass(spec) * GRAVITY / rotors
-    qpos0 = (*start, *(float(v) for v in _quat((0.0, 0.0, fixed["yaw"])).split()))
-    lines += [
-        "  </actuator>",
+    qpos0 = (*start, *(float(v) for v in _quat((0.0, 0.0, yaw)).split()))
+    return [
         "  <keyframe>",
         f'    <key name="hover" qpos="{_v(qpos0)} {_v([0.0] * spec.n_joints)}" '
         f'ctrl="{_v([hover] * rotors)} {_v([0.0] * spec.n_joints)}"/>',
         "  </keyframe>",
-        "</mujoco>",
     ]
-    return "\n".join(lines) + "\n"

@@ -34,7 +34,7 @@ import numpy as np
 
 from aeromanip.errors import ConfigError, StateError
 from aeromanip.robot.spec import PLATFORM_DOFS, RobotSpec
-from aeromanip.sim.base import Simulator
+from aeromanip.sim.base import SIMULATORS, Simulator
 from aeromanip.sim.flight_controller import FlightController, FlightGains, Mixer, rotor_layout
 from aeromanip.sim.mjcf import FREE_JOINT, K_M, SERVO_HZ, max_rotor_thrust, robot_to_mjcf
 
@@ -43,6 +43,8 @@ OPTION_KEYS = (
     "rate_hz", "outer_rate_hz", "rotors", "seed", "noise", "gains", "servo_hz", "servo_i"
 )  # fmt: skip
 SERVO_I = 4.0  # [1/s] servo integral gain relative to kp (ki = SERVO_I kp)
+RATE_HZ = 500.0  # [Hz] default physics and attitude/rate-loop rate
+MIN_RATE_HZ = 100.0  # [Hz] lowest accepted physics rate
 OUTER_RATE_HZ = 100.0  # [Hz] default rate of the position/velocity loop
 MIN_OUTER_RATE_HZ = 10.0  # [Hz] lowest accepted outer-loop rate (position bandwidth ~0.35 Hz)
 
@@ -59,6 +61,7 @@ def _number(value: Any, path: str, low: float | None = None) -> float:
     return float(value)
 
 
+@SIMULATORS.register("physics")
 class PhysicsSimulator(Simulator):
     """The UAM in MuJoCo with a cascaded flight controller and PID joint servos.
 
@@ -83,12 +86,13 @@ class PhysicsSimulator(Simulator):
     """
 
     instant_extras = ("roll", "pitch")
+    options_table = "physics"
 
     def __init__(
         self,
         spec: RobotSpec,
         *,
-        rate_hz: float = 500.0,
+        rate_hz: float = RATE_HZ,
         outer_rate_hz: float = OUTER_RATE_HZ,
         noise: Mapping[str, float] | None = None,
         seed: int = 0,
@@ -98,7 +102,35 @@ class PhysicsSimulator(Simulator):
         servo_i: float = SERVO_I,
     ) -> None:
         self.spec = spec
-        self.rate_hz = _number(rate_hz, "physics.rate_hz", 100.0)
+        self._read_options(rate_hz, outer_rate_hz, noise, seed, servo_i)
+        self.h = 1.0 / self.rate_hz
+        rotors = spec.platform.rotors if rotors is None else rotors
+        self.xml = robot_to_mjcf(spec, rotors=rotors, timestep=self.h, servo_hz=servo_hz)
+        self.model = mujoco.MjModel.from_xml_string(self.xml)
+        self.data = mujoco.MjData(self.model)
+        self.rotors = rotors
+        self._bind_model()
+        positions, spins = rotor_layout(rotors, spec.platform.arm_length, spec.platform.coaxial)
+        self.mixer = Mixer(positions, spins, K_M, max_rotor_thrust(spec, rotors))
+        self.mass = float(self.model.body_subtreemass[self._base])
+        self.gains = gains or FlightGains()
+        self.controller = self._make_controller(np.eye(3))
+        x0 = np.zeros(spec.nx)
+        for i, d in enumerate(spec.platform.dofs):
+            x0[i] = 1.0 if d == "z" else 0.0
+        x0[self._n_p :] = np.clip(0.0, self._q_lo, self._q_hi)
+        self.reset(x0)
+
+    def _read_options(
+        self,
+        rate_hz: float,
+        outer_rate_hz: float,
+        noise: Mapping[str, float] | None,
+        seed: int,
+        servo_i: float,
+    ) -> None:
+        """Check the options (errors name the ``physics.*`` key) and keep them."""
+        self.rate_hz = _number(rate_hz, "physics.rate_hz", MIN_RATE_HZ)
         outer = _number(outer_rate_hz, "physics.outer_rate_hz", MIN_OUTER_RATE_HZ)
         if outer > self.rate_hz:
             raise ConfigError(
@@ -117,13 +149,11 @@ class PhysicsSimulator(Simulator):
             raise ConfigError(f"physics.seed: must be an integer, got {seed!r}")
         self.seed = seed
         self.servo_i = _number(servo_i, "physics.servo_i", 0.0)
-        self.h = 1.0 / self.rate_hz
-        rotors = spec.platform.rotors if rotors is None else rotors
-        self.xml = robot_to_mjcf(spec, rotors=rotors, timestep=self.h, servo_hz=servo_hz)
-        self.model = mujoco.MjModel.from_xml_string(self.xml)
-        self.data = mujoco.MjData(self.model)
-        m = self.model
-        self.rotors = rotors
+
+    def _bind_model(self) -> None:
+        """Ids, addresses and servo constants of the model; views into MjData for the
+        per-step Python (which works on floats)."""
+        m, d, spec = self.model, self.data, self.spec
         self._base = m.body(spec.base_link).id
         self._arm1 = m.body(spec.joints[0].link_name).id
         self._ee = m.site(spec.ee_link).id
@@ -132,12 +162,11 @@ class PhysicsSimulator(Simulator):
         jids = [m.joint(j.name).id for j in spec.joints]
         self._q_adr = np.array([m.jnt_qposadr[i] for i in jids])
         self._v_adr = np.array([m.jnt_dofadr[i] for i in jids])
-        servo = np.arange(rotors, rotors + spec.n_joints)
+        servo = np.arange(self.rotors, self.rotors + spec.n_joints)
         self._kp = m.actuator_gainprm[servo, 0].copy()
         self._kv = -m.actuator_biasprm[servo, 2].copy()
         self._q_lo = np.array([j.lower for j in spec.joints])
         self._q_hi = np.array([j.upper for j in spec.joints])
-        # per-joint constants of the servo loop and views into MjData for the per-step Python
         self._servos = tuple(
             zip(
                 self._q_adr.tolist(), self._q_lo.tolist(), self._q_hi.tolist(),
@@ -145,7 +174,6 @@ class PhysicsSimulator(Simulator):
                 strict=True,
             )
         )  # fmt: skip
-        d = self.data
         self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
         root = m.body_rootid[self._arm1]
         self._arm_views = (d.cfrc_int[self._arm1], d.subtree_com[root], d.xpos[self._base])
@@ -156,16 +184,6 @@ class PhysicsSimulator(Simulator):
         ]
         self._yaw_idx = spec.platform.dofs.index("yaw") if "yaw" in spec.platform.dofs else None
         self._fixed = {d: float(spec.platform.fixed.get(d, 0.0)) for d in PLATFORM_DOFS}
-        positions, spins = rotor_layout(rotors, spec.platform.arm_length, spec.platform.coaxial)
-        self.mixer = Mixer(positions, spins, K_M, max_rotor_thrust(spec, rotors))
-        self.mass = float(m.body_subtreemass[self._base])
-        self.gains = gains or FlightGains()
-        self.controller = self._make_controller(np.eye(3))
-        x0 = np.zeros(spec.nx)
-        for i, d in enumerate(spec.platform.dofs):
-            x0[i] = 1.0 if d == "z" else 0.0
-        x0[self._n_p :] = np.clip(0.0, self._q_lo, self._q_hi)
-        self.reset(x0)
 
     @classmethod
     def from_options(cls, spec: RobotSpec, options: Mapping[str, Any]) -> PhysicsSimulator:

@@ -4,15 +4,23 @@ A task's cost at stage ``k`` is ``||r_k||^2_W`` with ``W`` given where tasks are
 (``Problem.add_task``), not inside the task (as in Crocoddyl). Terminal stage ``N`` uses
 ``terminal_residual`` (no command exists there) with the terminal weight ``W_s``.
 Residuals are built symbolically from the kinematics Functions, once per problem.
+
+Tasks are registered by name in ``TASKS`` (one module each); a scenario's
+``[tasks.NAME] kind = ...`` names one, or a ``Task`` subclass of your own as
+``"package.module:Class"``, built by its ``from_table``.
 """
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
+from aeromanip.config import Table
+from aeromanip.references import Reference
+from aeromanip.registry import Registry
 from aeromanip.robot.kinematics import Kinematics
 
 
@@ -37,7 +45,7 @@ class Stage:
     dt: float
 
 
-class Task:
+class Task(ABC):
     """A cost term ``||r||^2_W``. Subclass and implement ``residual``.
 
     Attributes:
@@ -56,9 +64,9 @@ class Task:
         stage = Stage(kin, x, u, u, ca.SX.sym("p", self.param_size), 1.0)
         return int(self.residual(stage).numel())
 
+    @abstractmethod
     def residual(self, stage: Stage) -> ca.SX:
         """Stage residual ``r(x_k, u_k, p_k)`` (a column vector)."""
-        raise NotImplementedError
 
     def terminal_residual(self, stage: Stage) -> ca.SX | None:
         """Terminal residual ``r(x_N, p_N)``; ``None`` if the task has no terminal term.
@@ -70,3 +78,13 @@ class Task:
     def param_values(self, times: np.ndarray) -> np.ndarray:
         """Stage parameters at absolute ``times`` [s]: array (len(times), param_size)."""
         return np.zeros((len(times), self.param_size))
+
+    @classmethod
+    def from_table(cls, table: Table, reference: Reference) -> Task:
+        """Build from a scenario's ``[tasks.NAME]`` table (its own options only: the
+        weights and level are read by the scenario). ``reference`` is the scenario's
+        end-effector reference. By default the task takes no option."""
+        return cls()
+
+
+TASKS: Registry[Task] = Registry("task", "aeromanip.tasks", Task)

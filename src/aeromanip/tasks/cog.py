@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import casadi as ca
 
+from aeromanip.config import Table
 from aeromanip.errors import ConfigError
-from aeromanip.tasks.base import Stage, Task
+from aeromanip.references import Reference
+from aeromanip.tasks.base import TASKS, Stage, Task
+
+TARGET_XY = (0.0, 0.0)  # [m] where the arm CoG goes in the body xy plane
 
 
+@TASKS.register("cog")
 class CogAlignment(Task):
     """``r = p_Gxy``: the arm CoG projected on the body xy plane [m] goes to the body origin.
 
@@ -17,14 +22,21 @@ class CogAlignment(Task):
 
     name = "cog"
 
-    def __init__(self, target_xy: tuple[float, float] = (0.0, 0.0)) -> None:
+    def __init__(self, target_xy: tuple[float, float] = TARGET_XY) -> None:
         self.target = ca.DM(list(target_xy))
 
     def residual(self, stage: Stage) -> ca.SX:
         """Body-frame xy offset of the arm CoG from the target [m]."""
         return stage.kin.cog_body(stage.x)[:2] - self.target
 
+    @classmethod
+    def from_table(cls, table: Table, reference: Reference) -> CogAlignment:
+        """Option: ``target_xy`` [m]."""
+        x, y = table.floats("target_xy", TARGET_XY, size=2)
+        return cls((x, y))
 
+
+@TASKS.register("cog_velocity")
 class CogVelocity(Task):
     """``r = J_Gxy(x) u``: body-frame xy velocity of the arm CoG [m/s] (eq. 12).
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 import casadi as ca
 
 from aeromanip.errors import ConfigError
-from aeromanip.tasks.base import Stage, Task
+from aeromanip.tasks.base import TASKS, Stage, Task
 
 
+@TASKS.register("control_rate")
 class ControlRate(Task):
     """``r = u_k - u_{k-1}`` (per DoF; the applied command for ``k = 0``) [state units/s].
 

@@ -6,9 +6,17 @@ from collections.abc import Sequence
 
 import casadi as ca
 
-from aeromanip.tasks.base import Stage, Task
+from aeromanip.config import Table
+from aeromanip.references import Reference
+from aeromanip.tasks.base import TASKS, Stage, Task
+
+TRACKED = "xyz"  # the coordinates whose Jacobian rows make J_eq
+EPS = 1e-9  # [units of D] keeps 1/D finite at singular configurations
+DELTA = 1e-9  # [units of J_eq J_eq^T] keeps rho finite at singular configurations
+KINK = 1e-4  # rounding of rho's kinks (spectral.py), so that Newton-type solvers converge
 
 
+@TASKS.register("manipulability")
 class Manipulability(Task):
     """``r = 1 / (D + eps)`` with ``D = det(J_eq J_eq^T)``, so ``||r||^2 = 1/D^2``.
 
@@ -18,7 +26,7 @@ class Manipulability(Task):
 
     name = "manipulability"
 
-    def __init__(self, tracked: str | Sequence[str] = "xyz", eps: float = 1e-9) -> None:
+    def __init__(self, tracked: str | Sequence[str] = TRACKED, eps: float = EPS) -> None:
         self.tracked = tracked
         self.eps = eps
 
@@ -27,7 +35,13 @@ class Manipulability(Task):
         D = stage.kin.manipulability(self.tracked)(stage.x)
         return 1.0 / (D + self.eps)
 
+    @classmethod
+    def from_table(cls, table: Table, reference: Reference) -> Manipulability:
+        """Options: ``tracked``, ``eps``."""
+        return cls(table.str("tracked", TRACKED), eps=table.float("eps", EPS))
 
+
+@TASKS.register("condition")
 class ConditionNumber(Task):
     """``r = 1 - rho`` with ``rho`` the condition number of ``J_eq J_eq^T``.
 
@@ -40,7 +54,7 @@ class ConditionNumber(Task):
     name = "condition"
 
     def __init__(
-        self, tracked: str | Sequence[str] = "xyz", delta: float = 1e-9, kink: float = 1e-4
+        self, tracked: str | Sequence[str] = TRACKED, delta: float = DELTA, kink: float = KINK
     ) -> None:
         self.tracked = tracked
         self.delta = delta
@@ -49,3 +63,12 @@ class ConditionNumber(Task):
     def residual(self, stage: Stage) -> ca.SX:
         """``1 - rho``."""
         return 1.0 - stage.kin.condition_number(self.tracked, self.delta, self.kink)(stage.x)
+
+    @classmethod
+    def from_table(cls, table: Table, reference: Reference) -> ConditionNumber:
+        """Options: ``tracked``, ``delta``, ``kink``."""
+        return cls(
+            table.str("tracked", TRACKED),
+            delta=table.float("delta", DELTA),
+            kink=table.float("kink", KINK),
+        )

@@ -7,12 +7,16 @@ from collections.abc import Sequence
 import casadi as ca
 import numpy as np
 
+from aeromanip.config import Table
 from aeromanip.errors import ConfigError
 from aeromanip.references import Reference
 from aeromanip.robot.kinematics import Kinematics
-from aeromanip.tasks.base import Stage, Task
+from aeromanip.tasks.base import TASKS, Stage, Task
+
+TRACKED = "xyz"  # the world coordinates tracked by default
 
 
+@TASKS.register("tracking")
 class EndEffectorTracking(Task):
     """``e_e = p_e(x) - p_e^d(t)`` for the ``tracked`` world coordinates [m].
 
@@ -26,7 +30,7 @@ class EndEffectorTracking(Task):
     def __init__(
         self,
         reference: Reference,
-        tracked: str | Sequence[str] = "xyz",
+        tracked: str | Sequence[str] = TRACKED,
         orientation: np.ndarray | None = None,
     ) -> None:
         self.reference = reference
@@ -54,3 +58,8 @@ class EndEffectorTracking(Task):
     def param_values(self, times: np.ndarray) -> np.ndarray:
         """The reference position at each time [m]."""
         return np.asarray(self.reference.sample(np.asarray(times, dtype=float)), dtype=float)
+
+    @classmethod
+    def from_table(cls, table: Table, reference: Reference) -> EndEffectorTracking:
+        """Option: ``tracked`` (e.g. ``"yz"``); the reference is the scenario's."""
+        return cls(reference, tracked=table.str("tracked", TRACKED))

@@ -1,113 +1,63 @@
-"""NLP solver backends (CasADi ``nlpsol``) for a ``Transcription``, with warm start.
-
-* ``ipopt``: the robust reference (interior point, exact Hessian, MUMPS).
-* ``fatrop``: a structure-exploiting interior-point method for optimal control
-  (Riccati-based linear algebra over the stage-wise variable/constraint order).
-* ``sqp``: Gauss-Newton SQP with exact condensing and DAQP (or qpOASES), compiled model Functions
-  (``aeromanip.sqp``); ``sqp-rti``: the same, one QP per call (real-time iteration).
-
-``make_backend`` picks one by name.
-"""
+"""CasADi ``nlpsol`` backends for a ``Transcription``, with warm start: ``ipopt``, ``fatrop``."""
 
 from __future__ import annotations
 
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import casadi as ca
 import numpy as np
 
 from aeromanip.errors import ConfigError
-from aeromanip.ocp import Transcription
+from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult
+from aeromanip.nmpc.transcription import Transcription
 
-BACKENDS = ("ipopt", "fatrop", "sqp", "sqp-rti")
-
-
-@dataclass
-class NlpResult:
-    """One NLP solve: primal/dual solution, status and statistics."""
-
-    w: np.ndarray
-    lam_g: np.ndarray
-    lam_x: np.ndarray
-    f: float
-    success: bool
-    status: str
-    iterations: int
-    solve_time_s: float
-
-
-class Backend(Protocol):
-    """What strategies need from a solver backend."""
-
-    def solve(
-        self,
-        w0: np.ndarray,
-        p: np.ndarray,
-        lbg: np.ndarray,
-        ubg: np.ndarray,
-        lam_g0: np.ndarray | None = None,
-        lam_x0: np.ndarray | None = None,
-        shift: bool = True,
-    ) -> NlpResult:
-        """Solve from a primal guess and the last control step's multipliers (moved a
-        stage on unless ``shift`` is False)."""
-        ...
+IPOPT_OPTIONS: dict[str, Any] = {
+    "print_time": False,
+    "ipopt.print_level": 0,
+    "ipopt.sb": "yes",
+    "ipopt.max_iter": 300,
+    "ipopt.warm_start_init_point": "yes",
+    "ipopt.warm_start_bound_push": 1e-6,
+    "ipopt.warm_start_mult_bound_push": 1e-6,
+    "ipopt.mu_init": 1e-3,
+}
+FATROP_OPTIONS: dict[str, Any] = {
+    "print_time": False,
+    "structure_detection": "auto",
+    "fatrop.print_level": 0,
+    "fatrop.max_iter": 300,
+    "fatrop.mu_init": 1e-3,
+}
 
 
-def _options(name: str, tr: Transcription, user: Mapping[str, Any]) -> dict[str, Any]:
-    if name == "ipopt":
-        opts: dict[str, Any] = {
-            "print_time": False,
-            "ipopt.print_level": 0,
-            "ipopt.sb": "yes",
-            "ipopt.max_iter": 300,
-            "ipopt.warm_start_init_point": "yes",
-            "ipopt.warm_start_bound_push": 1e-6,
-            "ipopt.warm_start_mult_bound_push": 1e-6,
-            "ipopt.mu_init": 1e-3,
-        }
-    elif name == "fatrop":
-        opts = {
-            "print_time": False,
-            "structure_detection": "auto",
-            "equality": tr.equality,
-            "fatrop.print_level": 0,
-            "fatrop.max_iter": 300,
-            "fatrop.mu_init": 1e-3,
-        }
-    else:
-        raise ConfigError(f"solver.backend: unknown backend {name!r} (choose from {BACKENDS})")
-    opts.update(user)
-    return opts
-
-
-class NlpBackend:
-    """A compiled-once ``nlpsol`` for one transcription.
+class NlpBackend(Backend):
+    """A built-once ``nlpsol`` for one transcription (``solver`` names the plugin).
 
     Args:
         transcription: the NLP.
-        name: ``"ipopt"`` or ``"fatrop"``.
         options: extra CasADi/solver options overriding the defaults (e.g. ``{"ipopt.tol": 1e-6}``).
     """
 
+    solver_name = "ipopt"
+
+    def default_options(self) -> dict[str, Any]:
+        """The plugin's options before the user's."""
+        return dict(IPOPT_OPTIONS)
+
     def __init__(
-        self,
-        transcription: Transcription,
-        name: str = "ipopt",
-        options: Mapping[str, Any] | None = None,
+        self, transcription: Transcription, options: Mapping[str, Any] | None = None
     ) -> None:
         self.tr = transcription
-        self.name = name
+        name = self.name = self.solver_name
         nlp = {
             "x": transcription.w,
             "p": transcription.p,
             "f": transcription.f,
             "g": transcription.g,
         }
-        opts = _options(name, transcription, options or {})
+        opts = {**self.default_options(), **dict(options or {})}
         try:
             self.solver = ca.nlpsol(f"nmpc_{name}", name, nlp, opts)
         except RuntimeError as e:
@@ -187,19 +137,19 @@ def _status_text(stats: Mapping[str, Any]) -> str:
     return f"{unified} (code {status})"
 
 
-def make_backend(
-    transcription: Transcription, name: str = "ipopt", options: Mapping[str, Any] | None = None
-) -> Backend:
-    """The backend called ``name`` (one of ``BACKENDS``) for ``transcription``.
+@BACKENDS.register("ipopt")
+class IpoptBackend(NlpBackend):
+    """IPOPT: interior point, exact Hessian, MUMPS (the robust reference)."""
 
-    ``sqp-rti`` is ``sqp`` with ``{"rti": True}``. Every backend has
-    ``solve(w0, p, lbg, ubg, lam_g0=None, lam_x0=None) -> NlpResult``.
-    """
-    if name in ("sqp", "sqp-rti"):
-        from aeromanip.sqp import SqpBackend
+    solver_name = "ipopt"
 
-        opts = dict(options or {})
-        if name == "sqp-rti":
-            opts.setdefault("rti", True)
-        return SqpBackend(transcription, opts)
-    return NlpBackend(transcription, name, options)
+
+@BACKENDS.register("fatrop")
+class FatropBackend(NlpBackend):
+    """fatrop: interior point with Riccati-based linear algebra over the stage structure."""
+
+    solver_name = "fatrop"
+
+    def default_options(self) -> dict[str, Any]:
+        """fatrop's options, with the equality rows it needs to detect the structure."""
+        return {**FATROP_OPTIONS, "equality": self.tr.equality}

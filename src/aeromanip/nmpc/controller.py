@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from aeromanip.errors import ConfigError, StateError
-from aeromanip.ocp import Problem
-from aeromanip.strategies import Hierarchical, LevelReport, StrategyResult, Weighted
+from aeromanip.nmpc.problem import Problem
+from aeromanip.nmpc.strategies import Hierarchical, LevelReport, StrategyResult, Weighted
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +56,8 @@ class Controller:
         problem: tasks, constraints, horizon.
         strategy: ``"weighted"`` or ``"hierarchical"``.
         backend: NLP solver: ``"ipopt"``, ``"fatrop"``, ``"sqp"`` (Gauss-Newton SQP, fast) or
-            ``"sqp-rti"`` (one SQP iteration per step); see ``aeromanip.solvers``.
+            ``"sqp-rti"`` (one SQP iteration per step), or a ``Backend`` subclass as
+            ``"package.module:Class"``; see ``aeromanip.nmpc.backends``.
         solver_options: extra options for the backend.
         hierarchy: options of ``Hierarchical`` (``mode``, ``rel_tol``, ``abs_tol``).
         time_budget_s: a solve slower than this is treated as failed (None: no budget).
@@ -92,8 +93,7 @@ class Controller:
         self.u_prev = np.zeros(self.nx) if u_prev is None else self._vector(u_prev, "u_prev")
         self._plan: tuple[np.ndarray, np.ndarray, int] | None = None  # X, U, steps since
         self._level_w: list[np.ndarray] = []  # each level's last solution (warm starts)
-        for st in self.strategy.stages:
-            st.warm = None
+        self.strategy.reset()
 
     def _vector(self, v: Any, what: str) -> np.ndarray:
         a = np.asarray(v, dtype=float).ravel()
@@ -121,10 +121,10 @@ class Controller:
         X[0] = x0
         return self.strategy.transcription.pack(X, U, self.u_prev)
 
-    def _guesses(self, x0: np.ndarray) -> list[np.ndarray | None]:
+    def initial_guesses(self, x0: np.ndarray) -> list[np.ndarray | None]:
         """Per level: its own last solution shifted, if any (level 0: else the last plan)."""
         tr = self.strategy.transcription
-        n = len(self.strategy.stages)
+        n = len(self.strategy.solvers)
         own = [self._shifted(x0, *tr.unpack(w)) for w in self._level_w[:n]]
         guesses: list[np.ndarray | None] = own + [None] * (n - len(own))
         if guesses[0] is None:
@@ -138,7 +138,7 @@ class Controller:
             raise StateError(f"t: must be finite, got {t}")
         tr = self.strategy.transcription
         p = tr.parameters(x0, self.u_prev, self.problem.stage_params(t))
-        res: StrategyResult = self.strategy.solve(p, self._guesses(x0))
+        res: StrategyResult = self.strategy.solve(p, self.initial_guesses(x0))
         message = "" if res.status == "ok" else res.status
         ok = res.success
         if ok and self.time_budget_s is not None and res.solve_time_s > self.time_budget_s:

@@ -17,9 +17,12 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from aeromanip.codegen import Buffered, quiet_stdout
 from aeromanip.errors import ConfigError
+from aeromanip.nmpc.backends.codegen import Buffered, quiet_stdout
 
+SCREEN_ROUNDS = 4  # solves on screened rows, at most
+PADDED_SIZES = (8, 16, 24, 32, 48, 64)  # row counts of the prebuilt solvers (and m)
+CROSS_TOL = 1e-6  # a row is crossed beyond this, relative to 1 + |d|_inf
 SOLVERS: dict[str, dict[str, Any]] = {
     "daqp": {"daqp": {"primal_tol": 1e-9, "iter_limit": 2000}},
     "qpoases": {"printLevel": "none", "sparse": False},
@@ -66,7 +69,7 @@ class DenseQp:
         self.opts.update(options or {})
         self.always = np.zeros(m, dtype=bool) if always is None else always
         self.shift_rows = np.arange(m) if shift_rows is None else shift_rows
-        self._sizes = sorted({k for k in (8, 16, 24, 32, 48, 64) if k < m} | {m})
+        self._sizes = sorted({k for k in PADDED_SIZES if k < m} | {m})
         self._solvers: dict[int, Buffered] = {}
         self.lam_a = np.zeros(m)  # the last multipliers: their rows go to the solver
         self._solver(m)
@@ -124,7 +127,7 @@ class DenseQp:
         ubx: np.ndarray,
     ) -> QpResult:
         near = self.always | (self.lam_a != 0.0) | (np.minimum(-lba, uba) < self.screen)
-        for _ in range(4):
+        for _ in range(SCREEN_ROUNDS):
             rows = np.nonzero(near)[0]
             k = next(s for s in self._sizes if s >= rows.size)
             if k == self.m:
@@ -132,7 +135,7 @@ class DenseQp:
             d, lam_r, lam_x, status = self._solve_rows(H, g, A, lba, uba, lbx, ubx, rows, k)
             if status:
                 return QpResult(d, np.zeros(self.m), lam_x, False, status)
-            tol = 1e-6 * (1.0 + np.abs(d).max(initial=0.0))
+            tol = CROSS_TOL * (1.0 + np.abs(d).max(initial=0.0))
             Ad = A @ d
             crossed = ((Ad < lba - tol) | (Ad > uba + tol)) & ~near
             if not crossed.any():
@@ -168,7 +171,7 @@ class DenseQp:
         q.run()
         d = q.out["x"].copy()
         # a finite, feasible solution means success: cheaper than asking for the stats
-        tol = 1e-6 * (1.0 + np.abs(d).max(initial=0.0))
+        tol = CROSS_TOL * (1.0 + np.abs(d).max(initial=0.0))
         Ad = Am[:r] @ d
         ok = bool(
             np.isfinite(d).all()

@@ -31,8 +31,13 @@ import casadi as ca
 import numpy as np
 
 from aeromanip.errors import ConfigError
-from aeromanip.ocp import Problem, TaskEntry, Transcription
-from aeromanip.solvers import Backend, NlpResult, make_backend
+from aeromanip.nmpc.backends import Backend, NlpResult, make_backend
+from aeromanip.nmpc.problem import Problem, TaskEntry
+from aeromanip.nmpc.transcription import Transcription
+
+MODE = "stagewise"  # the paper's form: one cost bound per predicted step
+REL_TOL = 1e-3  # relative relaxation of a higher level's optimal cost
+ABS_TOL = 1e-6  # absolute relaxation (where the optimum is ~0)
 
 
 @dataclass
@@ -71,7 +76,9 @@ class StrategyResult:
 
 
 @dataclass
-class _Stage:
+class LevelSolver:
+    """One level's NLP and its solver, with the last result (the warm start)."""
+
     entries: list[TaskEntry]
     tr: Transcription
     backend: Backend
@@ -92,18 +99,23 @@ class Weighted:
         if not problem.entries:
             raise ConfigError("tasks: the problem has no task")
         tr = Transcription(problem, problem.entries)
-        self.stages = [_Stage(problem.entries, tr, make_backend(tr, backend, options))]
+        self.solvers = [LevelSolver(problem.entries, tr, make_backend(tr, backend, options))]
         self.problem = problem
 
     @property
     def transcription(self) -> Transcription:
         """The transcription whose variable layout results use."""
-        return self.stages[-1].tr
+        return self.solvers[-1].tr
+
+    def reset(self) -> None:
+        """Forget the warm starts."""
+        for solver in self.solvers:
+            solver.warm = None
 
     def solve(self, p: np.ndarray, guesses: list[np.ndarray | None]) -> StrategyResult:
         """Solve from the primal guess ``guesses[0]`` (duals are reused from the last solve)."""
-        st = self.stages[0]
-        res = _solve_stage(st, p, guesses[0], st.tr.ubg)
+        st = self.solvers[0]
+        res = _solve_level(st, p, guesses[0], st.tr.ubg)
         C = st.tr.costs(res.w, p).sum() if res.success else np.nan
         rep = LevelReport(
             0, float(C), 0.0, res.success, res.status, res.iterations, res.solve_time_s
@@ -114,8 +126,8 @@ class Weighted:
         )
 
 
-def _solve_stage(
-    st: _Stage, p: np.ndarray, w0: np.ndarray, ubg: np.ndarray, lbg: np.ndarray | None = None
+def _solve_level(
+    st: LevelSolver, p: np.ndarray, w0: np.ndarray, ubg: np.ndarray, lbg: np.ndarray | None = None
 ) -> NlpResult:
     lam_g = lam_x = None
     lbg = st.tr.lbg if lbg is None else lbg
@@ -146,9 +158,9 @@ class Hierarchical:
     def __init__(
         self,
         problem: Problem,
-        mode: str = "stagewise",
-        rel_tol: float = 1e-3,
-        abs_tol: float = 1e-6,
+        mode: str = MODE,
+        rel_tol: float = REL_TOL,
+        abs_tol: float = ABS_TOL,
         backend: str = "ipopt",
         options: Mapping[str, Any] | None = None,
     ) -> None:
@@ -160,18 +172,18 @@ class Hierarchical:
         self.rel_tol, self.abs_tol = rel_tol, abs_tol
         reg = [e for e in problem.entries if e.level is None]
         self.levels = problem.levels
-        self.stages: list[_Stage] = []
+        self.solvers: list[LevelSolver] = []
         for i, lvl in enumerate(self.levels):
             own = [e for e in problem.entries if e.level == lvl]
             higher = [[e for e in problem.entries if e.level == h] for h in self.levels[:i]]
             tr = Transcription(problem, own + reg, higher, mode)
-            self.stages.append(_Stage(own, tr, make_backend(tr, backend, options)))
+            self.solvers.append(LevelSolver(own, tr, make_backend(tr, backend, options)))
         self.own_guess = backend.startswith("sqp")
         idx = {e.name: i for i, e in enumerate(problem.entries)}
-        self.rows = [[idx[e.name] for e in st.entries] for st in self.stages]
+        self.rows = [[idx[e.name] for e in st.entries] for st in self.solvers]
 
     def _residual_box(
-        self, st: _Stage, j: int, w_j: np.ndarray, p: np.ndarray, c_star: np.ndarray
+        self, st: LevelSolver, j: int, w_j: np.ndarray, p: np.ndarray, c_star: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Bounds ``R*_k -+ delta_k`` on group ``j``'s residual rows of level ``st``, with
         ``sum_i (|R*_ki| + delta_k)^2 = c*_k + tol_k`` (the cost bound at every corner)."""
@@ -192,7 +204,12 @@ class Hierarchical:
     @property
     def transcription(self) -> Transcription:
         """The transcription whose variable layout results use (all levels share it)."""
-        return self.stages[-1].tr
+        return self.solvers[-1].tr
+
+    def reset(self) -> None:
+        """Forget the warm starts."""
+        for solver in self.solvers:
+            solver.warm = None
 
     def solve(self, p: np.ndarray, guesses: list[np.ndarray | None]) -> StrategyResult:
         """Solve level by level; a failed lower level keeps the last successful solution.
@@ -207,7 +224,7 @@ class Hierarchical:
         w_best: np.ndarray | None = None
         total_t, total_it, status = 0.0, 0, "ok"
         level_w: list[np.ndarray] = []
-        for i, st in enumerate(self.stages):
+        for i, st in enumerate(self.solvers):
             lbg, ubg = st.tr.lbg.copy(), st.tr.ubg.copy()
             for j, c_star in enumerate(optima):
                 bound = c_star + np.maximum(self.abs_tol, self.rel_tol * np.abs(c_star))
@@ -221,7 +238,7 @@ class Hierarchical:
                 w0 = mine if mine is not None else guesses[0]
             else:
                 w0 = mine if (mine is not None and self.own_guess) else w_best
-            res = _solve_stage(st, p, w0, ubg, lbg)
+            res = _solve_level(st, p, w0, ubg, lbg)
             total_t += res.solve_time_s
             total_it += res.iterations
             if not res.success:
@@ -261,7 +278,7 @@ class Hierarchical:
             return StrategyResult(
                 np.full(n, np.nan), self.transcription, False, status, total_it, total_t, reports
             )
-        partial = len(optima) < len(self.stages)
+        partial = len(optima) < len(self.solvers)
         return StrategyResult(
             w_best,
             self.transcription,

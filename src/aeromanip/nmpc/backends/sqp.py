@@ -16,7 +16,7 @@ How it is built, and why:
   so the states are affine in the commands ``U``: the multiple-shooting NLP is solved in
   ``U`` alone (``N nx`` variables), the gap rows holding exactly. For N = 10 the dense QP
   is as cheap as a Riccati-based one, and it is solved by a dual active-set method
-  (``aeromanip.qp``: DAQP on the rows that may bind).
+  (``nmpc.backends.qp``: DAQP on the rows that may bind).
 * **Hierarchy rows** ``c_r = ||R_r||^2 <= b_r`` (stage-wise, ``Hierarchical``) are
   linearised, and their curvature enters the Hessian as ``2 lam_r J_r^T J_r`` (the
   Gauss-Newton part of the constraint's Hessian, positive semi-definite since
@@ -34,23 +34,24 @@ How it is built, and why:
   from the shifted previous solution; successful if the QP is. Iterated, it converges to
   the same optimum.
 
-The model Functions are compiled to C once and cached (``aeromanip.codegen``).
+The model Functions are compiled to C once and cached (``nmpc.backends.codegen``).
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
 
-from aeromanip.codegen import Buffered, compiled_all, limit_blas_threads
 from aeromanip.errors import ConfigError
-from aeromanip.ocp import Transcription, shift_map
-from aeromanip.qp import DenseQp
-from aeromanip.solvers import NlpResult
+from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult
+from aeromanip.nmpc.backends.codegen import Buffered, compiled_all, limit_blas_threads
+from aeromanip.nmpc.backends.kkt import complementarity, convexified, l1, violation
+from aeromanip.nmpc.backends.qp import DenseQp
+from aeromanip.nmpc.transcription import Transcription, shift_map
 
 DEFAULTS: dict[str, Any] = {
     "max_iter": 50,  # QPs per solve
@@ -72,9 +73,17 @@ DEFAULTS: dict[str, Any] = {
     "screen": 0.1,  # QP rows farther than this from their bounds are left out at first
     "blas_threads": 1,  # OpenBLAS threads in this process (None: leave as is)
 }
+HESSIANS = ("auto", "exact", "gauss-newton")
+EXACT_FROM_ITERATION = 6  # "auto": the exact Hessian from this (0-based) iteration on
+ARMIJO = 1e-4  # sufficient decrease of the l1 merit, per unit of its directional derivative
+BACKTRACK = 0.5  # step-length factor per rejected trial
+MIN_STEP = 1e-3  # the shortest step tried; taken as it is
+PENALTY_MARGIN = 1.1  # the merit's penalty exceeds the largest multiplier by this factor
+PENALTY_FLOOR = 1e-8  # and by at least this
 
 
-class SqpBackend:
+@BACKENDS.register("sqp")
+class SqpBackend(Backend):
     """SQP with Gauss-Newton (or exact) Hessians and exact condensing (module docstring).
 
     Args:
@@ -83,29 +92,50 @@ class SqpBackend:
     """
 
     name = "sqp"
+    defaults: ClassVar[dict[str, Any]] = DEFAULTS
 
     def __init__(
         self, transcription: Transcription, options: Mapping[str, Any] | None = None
     ) -> None:
+        self.opts = self.checked_options(options)
+        self.tr = tr = transcription
+        self.nU = tr.N * tr.nx
+        U, p = ca.SX.sym("U", self.nU), ca.SX.sym("p", tr.p.numel())
+        R, gc, Rh = self._condensed(U, p)
+        self._compile(U, p, R, gc, Rh)
+        self._qp_setup()
+        if self.opts["blas_threads"] is not None:
+            limit_blas_threads(int(self.opts["blas_threads"]))
+
+    @classmethod
+    def checked_options(cls, options: Mapping[str, Any] | None) -> dict[str, Any]:
+        """The defaults updated with ``options``; an unknown key or a bad value is a
+        ``ConfigError`` naming it (checked before anything is built)."""
         unknown = set(options or {}) - set(DEFAULTS)
         if unknown:
             raise ConfigError(
                 f"solver_options.{sorted(unknown)[0]}: unknown sqp option "
                 f"(known: {', '.join(DEFAULTS)})"
             )
-        self.opts = {**DEFAULTS, **dict(options or {})}
-        self.tr = tr = transcription
-        N, nx, nz, dt = tr.N, tr.nx, tr.nz, tr.problem.dt
-        self.nU = nU = N * nx
-        U = ca.SX.sym("U", nU)
-        p = ca.SX.sym("p", tr.p.numel())
+        opts = {**cls.defaults, **dict(options or {})}
+        if opts["hessian"] not in HESSIANS:
+            raise ConfigError(
+                f"solver_options.hessian: {opts['hessian']!r} is not one of {list(HESSIANS)}"
+            )
+        return opts
+
+    def _condensed(self, U: ca.SX, p: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX]:
+        """The NLP in the commands ``U`` alone: objective residuals ``R``, the rows that
+        may bind ``gc`` (path and hierarchy rows, then the state bounds as rows of ``U``)
+        and the hierarchy rows' residuals ``Rh``. Sets the index maps between layouts."""
+        tr, N, nx = self.tr, self.tr.N, self.tr.nx
         x, v, parts = p[:nx], p[nx : 2 * nx], []
-        for k in range(N + 1):
+        for k in range(N + 1):  # the model is linear: the states are affine in U
             parts += [x, v]
             if k < N:
                 uk = U[k * nx : (k + 1) * nx]
                 parts.append(uk)
-                x, v = x + dt * uk, uk
+                x, v = x + tr.problem.dt * uk, uk
         wU = ca.vertcat(*parts)
         hier = [r for _, r in tr.hier_residuals]
         ms = ca.Function("ms", [tr.w, tr.p], [tr.residuals, tr.g, ca.vertcat(*hier)])
@@ -113,33 +143,25 @@ class SqpBackend:
         gap = set(tr.gap_rows)
         self.keep = np.array([i for i in range(tr.g.numel()) if i not in gap], dtype=int)
         # state bounds become linear rows of U (stage 0 is the measured state: not bounded)
-        lbw, ubw = tr.lbw, tr.ubw
+        lbw, ubw, s = tr.lbw, tr.ubw, tr.stride
         sidx = [
-            k * tr.stride + i
+            k * s + i
             for k in range(1, N + 1)
             for i in range(nx)
-            if np.isfinite(lbw[k * tr.stride + i]) or np.isfinite(ubw[k * tr.stride + i])
+            if np.isfinite(lbw[k * s + i]) or np.isfinite(ubw[k * s + i])
         ]
         self.state_idx = np.array(sidx, dtype=int)
-        self.u_idx = np.array(
-            [k * tr.stride + nz + i for k in range(N) for i in range(nx)], dtype=int
-        )
-        gc = ca.vertcat(g[self.keep.tolist()], wU[sidx])
+        self.u_idx = np.array([k * s + tr.nz + i for k in range(N) for i in range(nx)], dtype=int)
         self.nk = len(self.keep)
         self.lb_state, self.ub_state = lbw[self.state_idx], ubw[self.state_idx]
-        row_of = {r: i for i, r in enumerate(self.keep)}
-        self.hier_elem_row = np.concatenate(
-            [np.full(r.numel(), row_of[row], dtype=int) for row, r in tr.hier_residuals]
-            or [np.zeros(0, dtype=int)]
-        )
-        tag = f"{len(tr.hier_residuals)}h{N}x{nx}"
+        return R, ca.vertcat(g[self.keep.tolist()], wU[sidx]), Rh
+
+    def _compile(self, U: ca.SX, p: ca.SX, R: ca.SX, gc: ca.SX, Rh: ca.SX) -> None:
+        """Build the model Functions (data, merit, exact Hessian) and compile them to C."""
+        tr = self.tr
+        tag = f"{len(tr.hier_residuals)}h{tr.N}x{tr.nx}"
         J, A, Jh = (ca.densify(ca.jacobian(e, U)) for e in (R, gc, Rh))
-        hess = self.opts["hessian"]
-        if hess not in ("auto", "exact", "gauss-newton"):
-            raise ConfigError(
-                f"solver_options.hessian: {hess!r} is not 'auto', 'exact' or 'gauss-newton'"
-            )
-        with_exact = hess != "gauss-newton" and not self.opts["rti"]
+        with_exact = self.opts["hessian"] != "gauss-newton" and not self.opts["rti"]
         data = ca.Function(f"aeromanip_sqp_data_{tag}", [U, p], [R, J, gc, A, Jh])
         merit = ca.Function(f"aeromanip_sqp_merit_{tag}", [U, p], [ca.sumsqr(R), gc])
         fs = [data, merit, tr.stage_costs]
@@ -151,28 +173,30 @@ class SqpBackend:
         tr.use_stage_costs(fs[2])
         self.hess = Buffered(fs[3]) if with_exact else None
         self.nr, self.nc, self.nh = R.numel(), gc.numel(), Rh.numel()
-        self.lbU = np.tile(tr.problem.bounds.u_lower, N)
-        self.ubU = np.tile(tr.problem.bounds.u_upper, N)
+
+    def _qp_setup(self) -> None:
+        """Command bounds, the rows that bind by design, shift maps and the QP solver."""
+        tr, nx, nU = self.tr, self.tr.nx, self.nU
+        self.lbU = np.tile(tr.problem.bounds.u_lower, tr.N)
+        self.ubU = np.tile(tr.problem.bounds.u_upper, tr.N)
+        row_of = {r: i for i, r in enumerate(self.keep)}
+        self.hier_elem_row = np.concatenate(
+            [np.full(r.numel(), row_of[row], dtype=int) for row, r in tr.hier_residuals]
+            or [np.zeros(0, dtype=int)]
+        )
         always = np.zeros(self.nc, dtype=bool)
         always[[row_of[r] for rows in tr.hier_rows for r in rows]] = True  # bind by design
         # which row predicts each one when the horizon moves a step on (as the NLP's)
         shift_rows = shift_map(
             [(tr.g_kind[r], tr.g_stage[r]) for r in self.keep]
-            + [(f"state{i % tr.stride}", i // tr.stride) for i in sidx]
+            + [(f"state{i % tr.stride}", i // tr.stride) for i in self.state_idx]
         )
         self.shift_vars = np.arange(nU) + nx
         self.shift_vars[self.shift_vars >= nU] -= nx  # the last command predicts itself
+        o = self.opts
         self.qp = DenseQp(
-            nU,
-            self.nc,
-            self.opts["qpsol"],
-            self.opts["qpsol_options"],
-            self.opts["screen"],
-            always,
-            shift_rows,
+            nU, self.nc, o["qpsol"], o["qpsol_options"], o["screen"], always, shift_rows
         )
-        if self.opts["blas_threads"] is not None:
-            limit_blas_threads(int(self.opts["blas_threads"]))
 
     # -- layout conversions --------------------------------------------------------------
     def _to_w(self, Uv: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -215,16 +239,10 @@ class SqpBackend:
         multipliers returned leave the model rows at 0 (condensed away)."""
         t0 = time.perf_counter()
         o = self.opts
-        Uv = np.asarray(w0, dtype=float)[self.u_idx].copy()
-        Uv = np.clip(Uv, self.lbU, self.ubU)
+        Uv = np.clip(np.asarray(w0, dtype=float)[self.u_idx], self.lbU, self.ubU)
         lbc = np.concatenate([lbg[self.keep], self.lb_state])
         ubc = np.concatenate([ubg[self.keep], self.ub_state])
-        lam_c, lam_u = self._duals_in(lam_g0, lam_x0)
-        if lam_g0 is None:  # a cold start: no guess of the active rows either
-            self.qp.reset()
-        elif shift:  # the last control step's multipliers, moved a stage on
-            lam_c, lam_u = lam_c[self.qp.shift_rows], lam_u[self.shift_vars]
-            self.qp.shift()
+        lam_c, lam_u = self._initial_duals(lam_g0, lam_x0, shift)
         p = np.asarray(p, dtype=float)
         reg = o["regularization"]
         mu, it, status, ok, f = 0.0, 0, "", False, np.nan
@@ -240,14 +258,10 @@ class SqpBackend:
             if not np.isfinite(f):  # NaN in derivatives shows in the QP's solution
                 status = "Invalid_Number_Detected"
                 break
-            viol = 0.0 if o["rti"] else _violation(gc, lbc, ubc)
+            viol = 0.0 if o["rti"] else violation(gc, lbc, ubc)
             kkt = np.inf  # the larger of stationarity and complementarity
             if not o["rti"] and (it > 0 or lam_g0 is not None) and viol <= o["constr_viol_tol"]:
-                kkt = max(
-                    _complementarity(gc, lbc, ubc, lam_c),
-                    _complementarity(Uv, self.lbU, self.ubU, lam_u),
-                    float(np.abs(grad + A.T @ lam_c + lam_u).max(initial=0.0)),
-                )
+                kkt = self._kkt_error(Uv, gc, lbc, ubc, grad, A, lam_c, lam_u)
                 if kkt <= o["tol"] and viol <= o["tol"]:
                     ok, status = True, "Solve_Succeeded"
                     break
@@ -271,17 +285,49 @@ class SqpBackend:
                 Uv = Uv + d
                 ok, status = True, "RTI step"
                 break
-            mu = max(mu, 1.1 * np.abs(lam_c).max(initial=0.0) + 1e-8)
-            alpha = self._line_search(Uv, d, p, f, grad, _l1(gc, lbc, ubc), mu, lbc, ubc)
+            mu = max(mu, PENALTY_MARGIN * np.abs(lam_c).max(initial=0.0) + PENALTY_FLOOR)
+            alpha = self._line_search(Uv, d, p, f, grad, l1(gc, lbc, ubc), mu, lbc, ubc)
             Uv = Uv + alpha * d
             # Gauss-Newton converges slowly where residuals are large: then go exact
             exact = o["hessian"] == "exact" or (
-                o["hessian"] == "auto" and (exact or alpha < 1.0 or it >= 6)
+                o["hessian"] == "auto" and (exact or alpha < 1.0 or it >= EXACT_FROM_ITERATION)
             )
         lam_g, lam_x = self._duals_out(lam_c, lam_u)
         w = self._to_w(Uv, p)
         ok = ok and bool(np.all(np.isfinite(w)))
         return NlpResult(w, lam_g, lam_x, f, ok, status, it, time.perf_counter() - t0)
+
+    def _initial_duals(
+        self, lam_g0: np.ndarray | None, lam_x0: np.ndarray | None, shift: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The starting multipliers (rows, command bounds) in the condensed layout, and
+        the QP's memory of active rows: forgotten on a cold start, moved a stage on with
+        the last control step's multipliers."""
+        lam_c, lam_u = self._duals_in(lam_g0, lam_x0)
+        if lam_g0 is None:
+            self.qp.reset()
+        elif shift:
+            lam_c, lam_u = lam_c[self.qp.shift_rows], lam_u[self.shift_vars]
+            self.qp.shift()
+        return lam_c, lam_u
+
+    def _kkt_error(
+        self,
+        Uv: np.ndarray,
+        gc: np.ndarray,
+        lbc: np.ndarray,
+        ubc: np.ndarray,
+        grad: np.ndarray,
+        A: np.ndarray,
+        lam_c: np.ndarray,
+        lam_u: np.ndarray,
+    ) -> float:
+        """The larger of complementarity (rows and bounds) and stationarity."""
+        return max(
+            complementarity(gc, lbc, ubc, lam_c),
+            complementarity(Uv, self.lbU, self.ubU, lam_u),
+            float(np.abs(grad + A.T @ lam_c + lam_u).max(initial=0.0)),
+        )
 
     def _hessian(
         self,
@@ -310,7 +356,7 @@ class SqpBackend:
             H = Hf.reshape(self.nU, self.nU, order="F").copy()
             if Hh is not None:
                 H += Hh
-            return _convexified(H, A[lam_c != 0.0], np.flatnonzero(lam_u != 0.0))
+            return convexified(H, A[lam_c != 0.0], np.flatnonzero(lam_u != 0.0))
         H = J.T @ J
         H *= 2.0
         if Hh is not None:
@@ -335,58 +381,15 @@ class SqpBackend:
         alpha = 1.0
         while True:
             f1, gc1 = self.merit(Uv + alpha * d, p)
-            phi = float(f1[0]) + mu * _l1(gc1, lbc, ubc)
-            if phi <= phi0 + 1e-4 * alpha * min(slope, 0.0) or alpha < 1e-3:
+            phi = float(f1[0]) + mu * l1(gc1, lbc, ubc)
+            if phi <= phi0 + ARMIJO * alpha * min(slope, 0.0) or alpha < MIN_STEP:
                 return alpha
-            alpha *= 0.5
+            alpha *= BACKTRACK
 
 
-def _is_positive_definite(H: np.ndarray) -> bool:
-    try:
-        np.linalg.cholesky(H)
-    except np.linalg.LinAlgError:
-        return False
-    return True
+@BACKENDS.register("sqp-rti")
+class SqpRtiBackend(SqpBackend):
+    """``sqp`` with one Gauss-Newton QP and a full step per call (real-time iteration)."""
 
-
-def _convexified(H: np.ndarray, C: np.ndarray, fixed: np.ndarray) -> np.ndarray:
-    """``H`` if positive definite; else ``H + rho C'C`` (plus ``rho`` on the ``fixed``
-    variables' diagonal) for the smallest ``rho`` in a few decades that makes it so; else
-    ``H`` with its eigenvalues reflected (``|lambda|``, floored)."""
-    if _is_positive_definite(H):
-        return H
-    if C.shape[0] or fixed.size:
-        scale = max(float(np.abs(np.diag(H)).max()), 1e-8)
-        norms = np.concatenate([np.einsum("ij,ij->i", C, C), np.ones(fixed.size)])
-        base = scale / max(float(norms.mean()), 1e-12)
-        CtC = C.T @ C
-        CtC[fixed, fixed] += 1.0
-        for rho in base * 10.0 ** np.arange(0, 5):
-            Hc = H + rho * CtC
-            if _is_positive_definite(Hc):
-                return Hc
-    lam, V = np.linalg.eigh(H)
-    lam = np.maximum(np.abs(lam), 1e-6 * max(np.abs(lam).max(), 1e-3))
-    return (V * lam) @ V.T
-
-
-def _violation(g: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> float:
-    """Largest bound violation of ``g`` (0 inside)."""
-    if g.size == 0:
-        return 0.0
-    return float(max(np.max(lb - g), np.max(g - ub), 0.0))
-
-
-def _l1(g: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> float:
-    """Sum of the bound violations of ``g``."""
-    return float(np.sum(np.maximum(lb - g, 0.0)) + np.sum(np.maximum(g - ub, 0.0)))
-
-
-def _complementarity(g: np.ndarray, lb: np.ndarray, ub: np.ndarray, lam: np.ndarray) -> float:
-    """Largest ``|lam| * distance to its bound`` (casadi sign: ``lam > 0`` at the upper one)."""
-    if g.size == 0:
-        return 0.0
-    with np.errstate(invalid="ignore"):
-        c = np.where(lam > 0, lam * (ub - g), np.where(lam < 0, lam * (lb - g), 0.0))
-    c = np.abs(c).max()
-    return float(c) if np.isfinite(c) else np.inf
+    name = "sqp-rti"
+    defaults: ClassVar[dict[str, Any]] = {**DEFAULTS, "rti": True}

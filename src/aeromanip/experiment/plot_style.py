@@ -13,7 +13,7 @@ from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from aeromanip.runlog import bound_pair
+from aeromanip.experiment.runlog import bound_pair
 
 DPI = 120
 BOUND_STYLE: dict[str, Any] = {"color": "0.35", "ls": "--", "lw": 1.0}

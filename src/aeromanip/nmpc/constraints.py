@@ -6,8 +6,10 @@ measured one); command bounds at stages ``0..N-1``.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -15,6 +17,8 @@ import numpy as np
 from aeromanip.errors import ConfigError, InfeasibleProblemError
 from aeromanip.robot.spec import RobotSpec
 from aeromanip.tasks.base import Stage
+
+D_MIN = 0.1  # [m] default self-collision clearance below the base (paper eq. 17)
 
 
 @dataclass(frozen=True)
@@ -115,19 +119,25 @@ class Bounds:
         return float(max(np.max(self.x_lower - x), np.max(x - self.x_upper), 0.0))
 
 
-class PathConstraint:
+class PathRows(NamedTuple):
+    """Constraint rows ``lower <= expr <= upper`` at one stage."""
+
+    expr: ca.SX
+    lower: np.ndarray
+    upper: np.ndarray
+
+
+class PathConstraint(ABC):
     """``lower <= expression(stage) <= upper`` at stages ``1..N``.
 
     Subclass and implement ``expression``, or use ``UserConstraint`` with a callable.
     """
 
     name: str = "constraint"
-    lower: np.ndarray
-    upper: np.ndarray
 
-    def expression(self, stage: Stage) -> ca.SX:
-        """The constrained expression (a column vector)."""
-        raise NotImplementedError
+    @abstractmethod
+    def expression(self, stage: Stage) -> PathRows:
+        """The constrained expression (a column vector) and its bounds."""
 
     def uses_command(self) -> bool:
         """Whether the expression needs the command (then not applied at stage N)."""
@@ -143,18 +153,17 @@ class Clearance(PathConstraint):
 
     name = "clearance"
 
-    def __init__(self, d_min: float = 0.1, points: Sequence[str] | None = None) -> None:
+    def __init__(self, d_min: float = D_MIN, points: Sequence[str] | None = None) -> None:
         if not np.isfinite(d_min):
             raise ConfigError(f"clearance.d_min: must be finite, got {d_min}")
         self.d_min = float(d_min)
         self.points = None if points is None else list(points)
 
-    def expression(self, stage: Stage) -> ca.SX:
-        """Depth of each point below the base [m]."""
+    def expression(self, stage: Stage) -> PathRows:
+        """Depth of each point below the base [m], at least ``d_min``."""
         f = stage.kin.clearance(self.points)
         n = f.size1_out(0)
-        self.lower, self.upper = np.full(n, self.d_min), np.full(n, np.inf)
-        return f(stage.x)
+        return PathRows(f(stage.x), np.full(n, self.d_min), np.full(n, np.inf))
 
 
 class UserConstraint(PathConstraint):
@@ -171,21 +180,21 @@ class UserConstraint(PathConstraint):
     ) -> None:
         self.name = name
         self.fn = fn
-        self._lb, self._ub = lb, ub
+        self.lb, self.ub = lb, ub
         self._uses_command = uses_command
 
-    def expression(self, stage: Stage) -> ca.SX:
+    def expression(self, stage: Stage) -> PathRows:
         """``fn(stage)``, with bounds broadcast to its size."""
         e = ca.vec(self.fn(stage))
         n = e.numel()
-        self.lower = np.broadcast_to(np.asarray(self._lb, dtype=float), (n,)).copy()
-        self.upper = np.broadcast_to(np.asarray(self._ub, dtype=float), (n,)).copy()
-        bad = np.nonzero(self.lower > self.upper)[0]
+        lower = np.broadcast_to(np.asarray(self.lb, dtype=float), (n,)).copy()
+        upper = np.broadcast_to(np.asarray(self.ub, dtype=float), (n,)).copy()
+        bad = np.nonzero(lower > upper)[0]
         if bad.size:
             raise InfeasibleProblemError(
                 f"constraint {self.name!r}[{bad[0]}]: lower is above upper"
             )
-        return e
+        return PathRows(e, lower, upper)
 
     def uses_command(self) -> bool:
         """As declared by the user."""

@@ -22,7 +22,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from aeromanip.plot_style import (
+from aeromanip.experiment.plot_style import (
     active,
     bound_lines,
     finish,
@@ -32,7 +32,7 @@ from aeromanip.plot_style import (
     title_and_legend,
     unit,
 )
-from aeromanip.runlog import RunLog
+from aeromanip.experiment.runlog import RunLog
 
 PLATFORM = ("x", "y", "z", "yaw")
 REF_STYLE: dict[str, Any] = {"color": "r", "ls": "--", "lw": 1.2, "label": "reference"}
@@ -104,8 +104,14 @@ def plot_commands(
     for ax, dof in zip(axes, dofs, strict=True):
         plat = dof in PLATFORM
         label = "platform velocity command" if plat else "arm joint velocity command"
-        ax.step(t, log.column(f"u_{dof}"), where="post", color="C0" if plat else "C1", lw=1.2,
-                label=label)
+        ax.step(
+            t,
+            log.column(f"u_{dof}"),
+            where="post",
+            color="C0" if plat else "C1",
+            lw=1.2,
+            label=label,
+        )
         bound_lines(ax, b, f"u_{dof}")
         finish(ax, f"u_{dof} [{unit(dof, rate=True)}]")
     title_and_legend(fig, axes, _title(log, "NMPC velocity commands"))

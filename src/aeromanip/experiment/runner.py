@@ -18,24 +18,21 @@ import casadi as ca
 import numpy as np
 import tomli_w
 
-from aeromanip.controller import Controller
-from aeromanip.plots import plot_comparison, plot_run
+from aeromanip.experiment.plots import plot_comparison, plot_run
+from aeromanip.experiment.runlog import RunLog, motion_share, write_summary
+from aeromanip.experiment.scenario import Scenario
+from aeromanip.nmpc.controller import Controller
 from aeromanip.references import SinusoidPhases, Waypoints
 from aeromanip.robot.spec import PLATFORM_DOFS
-from aeromanip.robot.urdf import robot_to_urdf
-from aeromanip.runlog import RunLog, motion_share, write_summary
-from aeromanip.scenario import Scenario
-from aeromanip.sim.base import Simulator
-from aeromanip.sim.kinematic import KinematicSimulator
+from aeromanip.robot.urdf_export import robot_to_urdf
+from aeromanip.sim.base import SIMULATORS, Simulator
 
 
 def make_simulator(sc: Scenario) -> Simulator:
-    """The scenario's simulator: ``kinematic`` (ideal inner loop) or ``physics`` (MuJoCo)."""
-    if sc.sim == "physics":
-        from aeromanip.sim.physics import PhysicsSimulator
-
-        return PhysicsSimulator.from_options(sc.robot, sc.physics)
-    return KinematicSimulator(sc.robot.nx)
+    """The scenario's simulator (``sim``: a registered name or ``package.module:Class``)."""
+    cls = SIMULATORS.get(sc.sim, "sim")
+    options = sc.physics if cls.options_table == "physics" else {}
+    return cls.from_options(sc.robot, options)
 
 
 def make_controller(sc: Scenario) -> Controller:

@@ -1,0 +1,1 @@
+"""Closed-loop experiments: scenarios (TOML, extends, variants), the runner, run logs, plots."""

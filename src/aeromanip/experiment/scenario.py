@@ -1,0 +1,269 @@
+"""Scenarios: one TOML file describes a whole closed-loop run (and its variants).
+
+Layout (see the built-in files in ``aeromanip/scenarios/`` for documented examples)::
+
+    extends = "flight" | "other.toml"   (start from that scenario, override key by key)
+    name, description, duration [s], initial_state [nx],
+    sim ("kinematic" | "physics" | "package.module:Class")
+    robot = "x8-3dof"  |  robot = "path/robot.toml"  |  [robot] ... (inline robot table)
+    [controller]  strategy, backend (a name or "package.module:Class"), horizon, dt,
+                  time_budget, [hierarchy], [solver_options]
+    [bounds]      joints, velocity (bools), platform_box = { z = [lo, hi], ... },
+                  platform_margin [m], joint_margin [rad] (the NMPC plans inside the
+                  box and joint limits shrunk by them)
+    [clearance]   d_min, points, margin [m] (planned at d_min + margin; omit the table
+                  for no self-collision constraint)
+    [reference]   kind = "sinusoids" | "waypoints" | "lissajous" | "csv" | "constant" |
+                  "package.module:Class" (a Reference of your own), and its keys
+    [tasks.NAME]  kind (default NAME; or "package.module:Class"), weight, terminal_weight,
+                  level | regularizer = true, and the task's own options (tracked,
+                  target_xy, eps, delta, kink: see each task's ``from_table``)
+    [physics]     options of the physics simulator
+    [variants.NAME]  overrides merged into the scenario, e.g. ``tasks.cond.weight = 0.0``
+
+Every value read is recorded (defaults included) so that ``resolved`` written as TOML
+reproduces the run exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from aeromanip.config import Table, load_toml, resolve_toml
+from aeromanip.errors import ConfigError
+from aeromanip.experiment.sources import builtin_scenarios, expand_variants, scenario_source
+from aeromanip.nmpc.backends import BACKENDS
+from aeromanip.nmpc.constraints import D_MIN, Bounds, Clearance
+from aeromanip.nmpc.problem import Problem
+from aeromanip.nmpc.strategies import ABS_TOL, MODE, REL_TOL
+from aeromanip.nmpc.transcription import MODES
+from aeromanip.references import Reference, reference_from_table
+from aeromanip.robot.loader import robot_from_table
+from aeromanip.robot.spec import RobotSpec
+from aeromanip.sim.base import SIMULATORS
+from aeromanip.tasks import TASKS, EndEffectorTracking
+
+__all__ = ["Scenario", "build_scenario", "builtin_scenarios", "load_scenarios"]
+
+STRATEGIES = ("weighted", "hierarchical")
+
+
+@dataclass
+class Scenario:
+    """A resolved scenario: everything needed to build and run the closed loop."""
+
+    name: str
+    description: str
+    robot: RobotSpec
+    problem: Problem
+    reference: Reference
+    strategy: str
+    backend: str
+    solver_options: dict[str, Any]
+    hierarchy: dict[str, Any]
+    time_budget_s: float | None
+    duration: float
+    x0: np.ndarray
+    sim: str
+    physics: dict[str, Any]
+    tracked: str
+    clearance: Clearance | None
+    limits: Bounds
+    resolved: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def steps(self) -> int:
+        """Control steps in the run."""
+        return round(self.duration / self.problem.dt)
+
+
+@dataclass
+class ControllerSettings:
+    """The ``[controller]`` table, read."""
+
+    horizon: int
+    dt: float
+    strategy: str
+    backend: str
+    time_budget_s: float | None
+    hierarchy: dict[str, Any]
+    solver_options: dict[str, Any]
+
+
+def _robot(t: Table, base_dir: Path) -> RobotSpec:
+    raw = t.data.get("robot")
+    if isinstance(raw, str):  # a built-in name or a robot TOML file: inlined when resolved
+        p = Path(raw)
+        path = resolve_toml(
+            base_dir / p if p.suffix == ".toml" else raw, "aeromanip.robots", "robot"
+        )
+        return robot_from_table(t.sub("robot", load_toml(path)), base_dir=path.parent, source=path)
+    return robot_from_table(t.table("robot"), base_dir=base_dir)
+
+
+def _controller(t: Table) -> ControllerSettings:
+    ct = t.table("controller")
+    horizon, dt = ct.int("horizon", minimum=1), ct.float("dt")
+    strategy = ct.str("strategy", "weighted", choices=STRATEGIES)
+    backend = ct.str("backend", "ipopt")
+    BACKENDS.get(backend, ct.key("backend"))  # a known name, or a class that loads
+    budget = ct.raw("time_budget", None)
+    budget = None if budget is None else ct.float("time_budget")
+    hierarchy = {}
+    if strategy == "hierarchical" or ct.has("hierarchy"):
+        ht = ct.table("hierarchy", {})
+        hierarchy = {
+            "mode": ht.str("mode", MODE, choices=MODES),
+            "rel_tol": ht.float("rel_tol", REL_TOL),
+            "abs_tol": ht.float("abs_tol", ABS_TOL),
+        }
+        ht.done()
+        if strategy != "hierarchical":
+            hierarchy = {}  # a weighted variant of a hierarchical scenario: not used
+    solver_options = dict(ct.table("solver_options", {}).data)
+    ct.resolved["solver_options"] = solver_options
+    ct.done()
+    return ControllerSettings(horizon, dt, strategy, backend, budget, hierarchy, solver_options)
+
+
+def _bounds(t: Table, robot: RobotSpec) -> tuple[Bounds, Bounds]:
+    """The true limits and the (tightened) bounds the NMPC plans with."""
+    bt = t.table("bounds", {})
+    box_t = bt.table("platform_box", {})
+    box = {k: box_t.floats(k, size=2, finite=False) for k in box_t.data}
+    margins = {
+        "platform_margin": bt.float("platform_margin", 0.0),
+        "joint_margin": bt.float("joint_margin", 0.0),
+    }
+    for key, m in margins.items():
+        if m < 0:
+            raise ConfigError(f"{bt.key(key)}: must be >= 0, got {m}")
+    flags = {"joint_limits": bt.bool("joints", True), "velocity_limits": bt.bool("velocity", True)}
+    limits = Bounds.from_robot(robot, platform_box=box, **flags)
+    # constraint tightening: the NMPC plans inside bounds shrunk by the margins, so that the
+    # real robot, lagging its references a little (physics), stays inside the true ones
+    shrink = {d: margins["platform_margin"] for d in box}
+    if flags["joint_limits"]:
+        shrink.update({f"q{i + 1}": margins["joint_margin"] for i in range(robot.n_joints)})
+    bt.done()
+    return limits, limits.tightened(shrink)
+
+
+def _weight(tt: Table, key: str, default: Any) -> Any:
+    if isinstance(tt.data.get(key), dict):
+        wt = tt.table(key)
+        return {k: wt.float(k) for k in wt.data}
+    v = tt.raw(key, default)
+    if isinstance(v, list):
+        return list(tt.floats(key))
+    return tt.float(key) if key in tt.data else v
+
+
+def _tasks(t: Table, problem: Problem, reference: Reference) -> str:
+    """Add the ``[tasks.NAME]`` tables to ``problem``; return the tracked coordinates."""
+    tracked = "xyz"
+    tasks_t = t.table("tasks")
+    if not tasks_t.data:
+        raise ConfigError("tasks: the scenario needs at least one task")
+    for task_name in tasks_t.data:
+        tt = tasks_t.table(task_name)
+        kind = tt.str("kind", task_name if task_name in TASKS else "")
+        cls = TASKS.get(kind, tt.key("kind"))
+        regularizer = tt.bool("regularizer", False)
+        level = None if regularizer else tt.int("level", 0, minimum=0)
+        weight = _weight(tt, "weight", 1.0)
+        terminal = _weight(tt, "terminal_weight", None)
+        task = cls.from_table(tt, reference)
+        if isinstance(task, EndEffectorTracking):
+            tracked = task.tracked
+        tt.done()
+        problem.add_task(task, weight, terminal, level, name=task_name)
+    tasks_t.done()
+    return tracked
+
+
+def _clearance(t: Table, problem: Problem) -> Clearance | None:
+    """The ``[clearance]`` table: the true constraint; the NMPC plans ``margin`` inside it."""
+    if not t.has("clearance"):
+        return None
+    cl = t.table("clearance")
+    points = cl.raw("points", None)
+    if points is not None and (
+        not isinstance(points, list) or not all(isinstance(p, str) for p in points)
+    ):
+        raise ConfigError(f"{cl.key('points')}: expected an array of point names")
+    clearance = Clearance(cl.float("d_min", D_MIN), points)
+    margin = cl.float("margin", 0.0)
+    if margin < 0.0:
+        raise ConfigError(f"{cl.key('margin')}: must be >= 0 m, got {margin}")
+    cl.done()
+    # the NMPC keeps margin more than d_min: a real arm lags its plan a little
+    problem.add_constraint(Clearance(clearance.d_min + margin, points))
+    return clearance
+
+
+def _simulation(t: Table, robot: RobotSpec) -> tuple[str, dict[str, Any]]:
+    """The simulator's name and the ``[physics]`` options (read even when not used)."""
+    sim = t.str("sim", "kinematic")
+    SIMULATORS.get(sim, t.key("sim"))
+    physics = dict(t.table("physics", {}).data)
+    t.resolved["physics"] = physics
+    return sim, physics
+
+
+def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> Scenario:
+    """Build a ``Scenario`` from one variant's table; errors name the key path."""
+    t = Table(data)
+    name, description = t.str("name"), t.str("description", "")
+    robot = _robot(t, base_dir)
+    cs = _controller(t)
+    limits, bounds = _bounds(t, robot)
+    problem = Problem(robot, cs.horizon, cs.dt, bounds)
+    reference = reference_from_table(t.table("reference"), base_dir=base_dir)
+    tracked = _tasks(t, problem, reference)
+    clearance = _clearance(t, problem)
+    x0 = np.array(t.floats("initial_state", size=robot.nx))
+    if bounds.violation(x0) > 0:
+        raise ConfigError(f"initial_state: outside the state bounds by {bounds.violation(x0):.3g}")
+    sim, physics = _simulation(t, robot)
+    duration = t.float("duration")
+    if duration < cs.dt:
+        raise ConfigError(f"duration: must be at least one control period ({cs.dt} s)")
+    t.done()
+    resolved = dict(t.resolved)
+    if variant:
+        resolved["name"] = f"{name}/{variant}"
+    return Scenario(
+        name=resolved["name"],
+        description=description,
+        robot=robot,
+        problem=problem,
+        reference=reference,
+        strategy=cs.strategy,
+        backend=cs.backend,
+        solver_options=cs.solver_options,
+        hierarchy=cs.hierarchy,
+        time_budget_s=cs.time_budget_s,
+        duration=duration,
+        x0=x0,
+        sim=sim,
+        physics=physics,
+        tracked=tracked,
+        clearance=clearance,
+        limits=limits,
+        resolved=resolved,
+    )
+
+
+def load_scenarios(
+    name_or_path: str | Path, overrides: list[str] = (), only: str | None = None
+) -> dict[str, Scenario]:
+    """Every variant of a scenario, built: {variant name ("" if none): Scenario}."""
+    data, base_dir = scenario_source(name_or_path)
+    return {
+        v: build_scenario(d, base_dir, v) for v, d in expand_variants(data, overrides, only).items()
+    }

@@ -1,0 +1,80 @@
+"""What every NLP solver backend is: the result type, the base class, the registry.
+
+Built-in backends (one module each, registered by name in ``BACKENDS``):
+
+* ``ipopt``: the robust reference (interior point, exact Hessian, MUMPS);
+* ``fatrop``: a structure-exploiting interior-point method for optimal control
+  (Riccati-based linear algebra over the stage-wise variable/constraint order);
+* ``sqp``: Gauss-Newton SQP with exact condensing and dense QPs (DAQP), compiled model
+  Functions; ``sqp-rti``: the same, one QP per call (real-time iteration).
+
+``make_backend(transcription, name, options)`` builds one; a backend of your own is a
+``Backend`` subclass named ``"package.module:Class"``.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from aeromanip.nmpc.transcription import Transcription
+from aeromanip.registry import Registry
+
+
+@dataclass
+class NlpResult:
+    """One NLP solve: primal/dual solution, status and statistics."""
+
+    w: np.ndarray
+    lam_g: np.ndarray
+    lam_x: np.ndarray
+    f: float
+    success: bool
+    status: str
+    iterations: int
+    solve_time_s: float
+
+
+class Backend(ABC):
+    """An NLP solver for one ``Transcription``, built once and called at every step.
+
+    Args:
+        transcription: the NLP (its variable and row layout is kept for inputs/results).
+        options: the backend's own options (unknown keys are a ``ConfigError``).
+    """
+
+    kind: str = "backend"
+
+    @abstractmethod
+    def __init__(
+        self, transcription: Transcription, options: Mapping[str, Any] | None = None
+    ) -> None: ...
+
+    @abstractmethod
+    def solve(
+        self,
+        w0: np.ndarray,
+        p: np.ndarray,
+        lbg: np.ndarray,
+        ubg: np.ndarray,
+        lam_g0: np.ndarray | None = None,
+        lam_x0: np.ndarray | None = None,
+        shift: bool = True,
+    ) -> NlpResult:
+        """Solve from a primal guess and the last control step's multipliers (moved a
+        stage on unless ``shift`` is False)."""
+
+
+BACKENDS: Registry[Backend] = Registry("backend", "aeromanip.nmpc.backends", Backend)
+
+
+def make_backend(
+    transcription: Transcription, name: str = "ipopt", options: Mapping[str, Any] | None = None
+) -> Backend:
+    """The backend registered as ``name`` (or ``"package.module:Class"``) for
+    ``transcription``."""
+    return BACKENDS.get(name, "controller.backend")(transcription, options)

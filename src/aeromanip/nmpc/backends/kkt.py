@@ -1,0 +1,63 @@
+"""Optimality measures and Hessian convexification for the SQP (``nmpc.backends.sqp``).
+
+Constraint rows ``lb <= g <= ub``; multipliers in CasADi's sign convention (``> 0`` at an
+upper bound, ``< 0`` at a lower one).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+CONVEXIFY_DECADES = 5  # penalties rho tried on the active normals: base * 10**(0..4)
+EIGEN_FLOOR = 1e-6  # reflected eigenvalues kept above this share of the largest (or 1e-3)
+
+
+def is_positive_definite(H: np.ndarray) -> bool:
+    try:
+        np.linalg.cholesky(H)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def convexified(H: np.ndarray, C: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+    """``H`` if positive definite; else ``H + rho C'C`` (plus ``rho`` on the ``fixed``
+    variables' diagonal) for the smallest ``rho`` in a few decades that makes it so; else
+    ``H`` with its eigenvalues reflected (``|lambda|``, floored)."""
+    if is_positive_definite(H):
+        return H
+    if C.shape[0] or fixed.size:
+        scale = max(float(np.abs(np.diag(H)).max()), 1e-8)
+        norms = np.concatenate([np.einsum("ij,ij->i", C, C), np.ones(fixed.size)])
+        base = scale / max(float(norms.mean()), 1e-12)
+        CtC = C.T @ C
+        CtC[fixed, fixed] += 1.0
+        for rho in base * 10.0 ** np.arange(CONVEXIFY_DECADES):
+            Hc = H + rho * CtC
+            if is_positive_definite(Hc):
+                return Hc
+    lam, V = np.linalg.eigh(H)
+    lam = np.maximum(np.abs(lam), EIGEN_FLOOR * max(np.abs(lam).max(), 1e-3))
+    return (V * lam) @ V.T
+
+
+def violation(g: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> float:
+    """Largest bound violation of ``g`` (0 inside)."""
+    if g.size == 0:
+        return 0.0
+    return float(max(np.max(lb - g), np.max(g - ub), 0.0))
+
+
+def l1(g: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> float:
+    """Sum of the bound violations of ``g``."""
+    return float(np.sum(np.maximum(lb - g, 0.0)) + np.sum(np.maximum(g - ub, 0.0)))
+
+
+def complementarity(g: np.ndarray, lb: np.ndarray, ub: np.ndarray, lam: np.ndarray) -> float:
+    """Largest ``|lam| * distance to its bound`` (casadi sign: ``lam > 0`` at the upper one)."""
+    if g.size == 0:
+        return 0.0
+    with np.errstate(invalid="ignore"):
+        c = np.where(lam > 0, lam * (ub - g), np.where(lam < 0, lam * (lb - g), 0.0))
+    c = np.abs(c).max()
+    return float(c) if np.isfinite(c) else np.inf

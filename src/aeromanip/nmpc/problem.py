@@ -1,0 +1,141 @@
+"""The NMPC problem: robot, horizon, tasks with weights and levels, constraints.
+
+Problem (paper eq. 3-4): ``x[k+1] = x[k] + dt u[k]`` over ``N`` steps, cost = weighted
+task residuals, under bounds and path constraints. It only describes what to optimise;
+``nmpc.transcription`` turns it into an NLP per hierarchy level, built once and solved at
+every control step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from aeromanip.errors import ConfigError
+from aeromanip.nmpc.constraints import Bounds, PathConstraint
+from aeromanip.robot.kinematics import Kinematics
+from aeromanip.robot.spec import RobotSpec
+from aeromanip.tasks.base import Task
+
+Weight = float | Sequence[float] | Mapping[str, float]
+
+
+@dataclass
+class TaskEntry:
+    """A task placed in a problem: its weights and priority level.
+
+    ``level`` 0 is the highest priority. ``level=None`` marks a regulariser (typically the
+    control rate): part of every level's objective, never turned into a hierarchy constraint.
+    """
+
+    task: Task
+    weight: np.ndarray
+    terminal_weight: np.ndarray
+    level: int | None
+    name: str
+
+
+class Problem:
+    """What to optimise: robot, horizon, tasks with weights and levels, constraints.
+
+    Args:
+        robot: the UAM description.
+        horizon: number of steps ``N``.
+        dt: step ``Ts`` [s].
+        bounds: state/command bounds; default: the robot's joint and velocity limits.
+    """
+
+    def __init__(
+        self, robot: RobotSpec, horizon: int, dt: float, bounds: Bounds | None = None
+    ) -> None:
+        if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
+            raise ConfigError(f"horizon: must be an integer >= 1, got {horizon!r}")
+        if not (dt > 0 and np.isfinite(dt)):
+            raise ConfigError(f"dt: must be a finite number > 0, got {dt!r}")
+        self.robot = robot
+        self.kin = Kinematics(robot)
+        self.horizon = horizon
+        self.dt = float(dt)
+        self.bounds = bounds if bounds is not None else Bounds.from_robot(robot)
+        if self.bounds.names != robot.state_names:
+            raise ConfigError(f"bounds: names {self.bounds.names} != state {robot.state_names}")
+        self.entries: list[TaskEntry] = []
+        self.constraints: list[PathConstraint] = []
+
+    def add_task(
+        self,
+        task: Task,
+        weight: Weight = 1.0,
+        terminal_weight: Weight | None = None,
+        level: int | None = 0,
+        name: str | None = None,
+    ) -> TaskEntry:
+        """Add ``task`` with diagonal weight ``W`` and terminal weight ``W_s`` at ``level``.
+
+        A weight is a scalar, one value per residual entry, or (for residuals of state
+        size such as the control rate) a mapping from state names (``"x"``, ``"q1"``...)
+        to values, unnamed entries taking ``weight.get("default", 0)``. ``terminal_weight``
+        defaults to ``weight``.
+        """
+        name = name or task.name
+        if any(e.name == name for e in self.entries):
+            raise ConfigError(f"tasks.{name}: a task of this name is already in the problem")
+        if level is not None and (
+            isinstance(level, bool) or not isinstance(level, int) or level < 0
+        ):
+            raise ConfigError(f"tasks.{name}.level: must be an integer >= 0, got {level!r}")
+        size = task.residual_size(self.kin)
+        w = self._weight(weight, size, f"tasks.{name}.weight")
+        ws = (
+            w
+            if terminal_weight is None
+            else self._weight(terminal_weight, size, f"tasks.{name}.terminal_weight")
+        )
+        entry = TaskEntry(task, w, ws, level, name)
+        self.entries.append(entry)
+        return entry
+
+    def add_constraint(self, constraint: PathConstraint) -> None:
+        """Add a path constraint (applied at stages 1..N)."""
+        self.constraints.append(constraint)
+
+    def _weight(self, weight: Weight, size: int, path: str) -> np.ndarray:
+        if isinstance(weight, Mapping):
+            names = self.robot.state_names
+            if size != len(names):
+                raise ConfigError(f"{path}: named weights need a residual of state size")
+            unknown = set(weight) - set(names) - {"default"}
+            if unknown:
+                raise ConfigError(f"{path}.{sorted(unknown)[0]}: unknown DoF (use {list(names)})")
+            w = np.array([float(weight.get(n, weight.get("default", 0.0))) for n in names])
+        else:
+            w = (
+                np.broadcast_to(np.asarray(weight, dtype=float), (size,)).copy()
+                if np.ndim(weight) == 0
+                else np.asarray(weight, dtype=float)
+            )
+            if w.shape != (size,):
+                raise ConfigError(f"{path}: expected 1 or {size} values, got {w.size}")
+        if not np.all(np.isfinite(w)) or np.any(w < 0):
+            raise ConfigError(f"{path}: weights must be finite and >= 0, got {w.tolist()}")
+        return w
+
+    @property
+    def levels(self) -> list[int]:
+        """Priority levels in use, highest priority first."""
+        return sorted({e.level for e in self.entries if e.level is not None})
+
+    @property
+    def param_size(self) -> int:
+        """Stage parameters per stage (all tasks' references, concatenated)."""
+        return sum(e.task.param_size for e in self.entries)
+
+    def stage_params(self, t: float) -> np.ndarray:
+        """Every task's parameters at the stage times ``t + k dt``: (N+1, param_size)."""
+        times = t + self.dt * np.arange(self.horizon + 1)
+        cols = [e.task.param_values(times) for e in self.entries if e.task.param_size]
+        if not cols:
+            return np.zeros((self.horizon + 1, 0))
+        return np.hstack([np.asarray(c, dtype=float).reshape(len(times), -1) for c in cols])

@@ -1,0 +1,94 @@
+"""Sinusoids along one direction, phase after phase (paper Sec. VI-A)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from aeromanip.config import Table, to_floats
+from aeromanip.errors import ConfigError
+from aeromanip.references.base import AXES, REFERENCES, Reference, as_times, direction, vec3
+
+
+@REFERENCES.register("sinusoids")
+class SinusoidPhases(Reference):
+    """Sinusoids along one direction, one per phase (paper Sec. VI-A, Fig. 2).
+
+    Phase ``i`` (start ``t_i``, duration ``T_i``, amplitude ``a_i`` [m], frequency
+    ``f_i`` [Hz]) gives ``p(t) = o_i + d a_i sin(2 pi f_i (t - t_i))``, where ``d`` is the
+    unit direction and ``o_0 = center``. Each phase starts at zero phase and at the
+    point where the previous one ended (``o_{i+1} = p(t_i + T_i)``), so the reference is
+    continuous; when every phase lasts a whole number of half periods all ``o_i``
+    equal ``center``. After the last phase the end point is held.
+    """
+
+    def __init__(
+        self,
+        center: Sequence[float] | np.ndarray,
+        axis: int | str | Sequence[float] | np.ndarray,
+        phases: Sequence[tuple[float, float, float]],
+        *,
+        name: str = "reference",
+    ) -> None:
+        self.center = vec3(center, f"{name}.center")
+        self.direction = direction(axis, f"{name}.axis")
+        if len(phases) == 0:
+            raise ConfigError(f"{name}.phases: at least one phase is required")
+        rows = []
+        for i, ph in enumerate(phases):
+            where = f"{name}.phases[{i}]"
+            if len(ph) != 3:
+                raise ConfigError(f"{where}: expected (duration, amplitude, frequency), got {ph!r}")
+            dur, amp, freq = (float(v) for v in ph)
+            if not (math.isfinite(dur) and dur > 0):
+                raise ConfigError(f"{where}.duration: must be > 0 s, got {dur!r}")
+            if not math.isfinite(amp):
+                raise ConfigError(f"{where}.amplitude: must be finite, got {amp!r}")
+            if not (math.isfinite(freq) and freq >= 0):
+                raise ConfigError(f"{where}.frequency: must be >= 0 Hz, got {freq!r}")
+            rows.append((dur, amp, freq))
+        self.phases: tuple[tuple[float, float, float], ...] = tuple(rows)
+        ph_arr = np.array(rows)
+        self._starts = np.concatenate([[0.0], np.cumsum(ph_arr[:, 0])[:-1]])
+        end_offsets = ph_arr[:, 1] * np.sin(2 * np.pi * ph_arr[:, 2] * ph_arr[:, 0])
+        self._offsets = np.concatenate([[0.0], np.cumsum(end_offsets)])  # along d [m]
+        self.duration = float(ph_arr[:, 0].sum())
+
+    @property
+    def phase_starts(self) -> np.ndarray:
+        """Start time [s] of each phase."""
+        return self._starts.copy()
+
+    def sample(self, times: np.ndarray | Sequence[float]) -> np.ndarray:
+        """Reference positions [m] at ``times`` [s], shape (len(times), 3)."""
+        t = np.clip(as_times(times), 0.0, self.duration)
+        i = np.clip(np.searchsorted(self._starts, t, side="right") - 1, 0, len(self.phases) - 1)
+        ph = np.array(self.phases)
+        s = self._offsets[i] + ph[i, 1] * np.sin(2 * np.pi * ph[i, 2] * (t - self._starts[i]))
+        return self.center + s[:, None] * self.direction
+
+    @classmethod
+    def from_table(cls, table: Table, base_dir: Path | None = None) -> SinusoidPhases:
+        """Keys: ``center`` [m], ``axis`` ("x" | "y" | "z" | [dx, dy, dz]),
+        ``phases = [{ duration [s], amplitude [m], frequency [Hz] }, ...]``."""
+        center = table.floats("center", size=3)
+        axis = _axis(table)
+        phases = []
+        for ph in table.tables("phases"):
+            phases.append((ph.float("duration"), ph.float("amplitude"), ph.float("frequency")))
+            ph.done()
+        return cls(center, axis, phases, name=table.path or "reference")
+
+
+def _axis(table: Table) -> int | np.ndarray:
+    raw = table.raw("axis")
+    if isinstance(raw, str):
+        if raw not in AXES:
+            raise ConfigError(
+                f"{table.key('axis')}: {raw!r} is not one of {list(AXES)} or a 3-vector"
+            )
+        return AXES[raw]
+    return np.array(to_floats(raw, table.key("axis"), size=3))
