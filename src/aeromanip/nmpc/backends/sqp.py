@@ -139,7 +139,9 @@ class SqpBackend(Backend):
         wU = ca.vertcat(*parts)
         hier = [r for _, r in tr.hier_residuals]
         ms = ca.Function("ms", [tr.w, tr.p], [tr.residuals, tr.g, ca.vertcat(*hier)])
-        R, g, Rh = ms(wU, p)
+        # dense: a zero weight makes a residual entry a structural zero, and the buffers
+        # hold nonzeros only
+        R, g, Rh = (ca.densify(e) for e in ms(wU, p))
         gap = set(tr.gap_rows)
         self.keep = np.array([i for i in range(tr.g.numel()) if i not in gap], dtype=int)
         # state bounds become linear rows of U (stage 0 is the measured state: not bounded)

@@ -1,0 +1,76 @@
+"""Every backend on every built-in problem, against IPOPT converged tightly on the same NLP.
+
+Each built-in scenario variant's problem is solved once from its initial state (a cold
+start from rest: identical inputs) by the backend under test and by IPOPT
+(``tol = 1e-10``). The problems are nonconvex, so two solvers may stop in different local
+optima; what must hold is:
+
+* the backend's answer is a local optimum: IPOPT restarted there stays (same costs; for
+  the weighted strategy: IPOPT starts a hierarchy's lower levels from the level above's
+  answer, not from a guess);
+* it is no worse than IPOPT's: its level costs, compared in priority order (one level for
+  the weighted strategy), are not higher;
+* where both reach the same optimum, they apply the same command.
+"""
+
+import numpy as np
+import pytest
+
+from aeromanip.experiment.scenario import builtin_scenarios, load_scenarios
+from aeromanip.nmpc.controller import Controller
+
+REFERENCE = {"ipopt.tol": 1e-10}
+# restarted at an answer, IPOPT's barrier must start small or it walks away from it
+RESTART = {**REFERENCE, "ipopt.mu_init": 1e-10, "ipopt.warm_start_bound_push": 1e-10}
+OPTIONS = {"fatrop": {"fatrop.tol": 1e-10}, "sqp": {"tol": 1e-9}}
+REL = 1e-6  # costs within this (relative) are the same optimum
+CASES = [(name, variant) for name in builtin_scenarios() for variant in load_scenarios(name)]
+
+
+def solve(sc, backend, options, guess=None):
+    """One step from the scenario's initial state; ``guess`` (X, U) replaces the cold start."""
+    ctrl = Controller(sc.problem, sc.strategy, backend, options, hierarchy=sc.hierarchy or None)
+    if guess is not None:  # start every level at the given plan
+        ctrl.initial_guesses = lambda x0: (
+            [ctrl.strategy.transcription.pack(*guess, ctrl.u_prev)] * (len(ctrl.strategy.solvers))
+        )
+    cmd = ctrl.step(sc.x0, 0.0)
+    assert cmd.status == "ok", (backend, cmd.message)
+    return cmd
+
+
+def level_costs(cmd):
+    return np.array([lv.cost for lv in cmd.levels])
+
+
+def same(a, b):
+    return bool(np.all(np.abs(a - b) <= REL * np.maximum(np.abs(b), 1e-8)))
+
+
+KNOWN = {  # cases that fail today, each with its issue: they must start passing there
+    ("waypoints-unbounded", "hierarchical", "sqp"): "issue 14: level 1 runs out of iterations",
+    ("waypoints", "hierarchical", "sqp"): "issue 12: a level's report leaves out the "
+    "regulariser it minimises, so reports of two local optima compare wrongly",
+}
+
+
+@pytest.mark.parametrize("backend", ["sqp", "fatrop"])
+@pytest.mark.parametrize(("name", "variant"), CASES, ids=[f"{n}/{v}" for n, v in CASES])
+def test_backend_reaches_an_optimum_no_worse_than_ipopts(name, variant, backend, request):
+    if (name, variant, backend) in KNOWN:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=KNOWN[name, variant, backend]))
+    sc = load_scenarios(name, only=variant or None)[variant]
+    if backend == "fatrop" and sc.strategy == "hierarchical":
+        pytest.skip("fatrop stalls on the hierarchy's degenerate cost bounds (docs/guide.md)")
+    got = solve(sc, backend, OPTIONS[backend])
+    ref = solve(sc, "ipopt", REFERENCE)
+    mine, theirs = level_costs(got), level_costs(ref)
+    if sc.strategy == "weighted":
+        stay = level_costs(solve(sc, "ipopt", RESTART, guess=(got.plan_x, got.plan_u)))
+        assert same(stay, mine), ("not a local optimum", stay, mine)
+    for a, b in zip(mine, theirs, strict=True):  # lexicographic: the first difference decides
+        if not same(a, b):
+            assert a < b, f"a worse optimum than IPOPT's: levels {mine} vs {theirs}"
+            return
+    scale = 1.0 + np.abs(ref.u).max()
+    np.testing.assert_allclose(got.u, ref.u, atol=1e-5 * scale)
