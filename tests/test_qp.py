@@ -279,19 +279,29 @@ def test_rows_crossed_one_per_round_settle_within_four_rounds(monkeypatch, solve
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_rows_still_crossed_after_four_rounds_fail_as_screening_did_not_settle(monkeypatch, solver):
-    """Four rows crossed one per round: the fourth round's solution still crosses a row, so
-    the solve gives up (ok False, "screening did not settle") although the QP is feasible
-    (the brute force solves it), and remembers no active rows."""
+def test_rows_still_crossed_after_the_screened_rounds_end_in_the_full_qp(monkeypatch, solver):
+    """Four rows crossed one per round: after the screened rounds the full QP is solved,
+    and its answer is the brute force's."""
     qp = chain_instance(4)
-    assert brute_force(*qp) is not None
+    truth = brute_force(*qp)
+    assert truth is not None
     solver_qp = DenseQp(4, 9, solver=solver)
     calls = spy(monkeypatch, solver_qp)
     res = solver_qp.solve(*qp)
-    assert [r.tolist() for r, _ in calls] == [[], [0], [0, 1], [0, 1, 2]]
-    assert not res.ok
-    assert res.status == "screening did not settle"
-    assert not solver_qp.lam_a.any()
+    assert [r.tolist() for r, _ in calls] == [[], [0], [0, 1], [0, 1, 2], list(range(9))]
+    assert res.ok, res.status
+    assert_matches(res, truth)
+    np.testing.assert_array_equal(solver_qp.lam_a, res.lam_a)
+
+
+def test_reset_does_not_change_a_result_already_returned():
+    qp = chain_instance(1)
+    solver_qp = DenseQp(4, 9)
+    res = solver_qp.solve(*qp)
+    kept = res.lam_a.copy()
+    assert kept.any()
+    solver_qp.reset()
+    np.testing.assert_array_equal(res.lam_a, kept)
 
 
 @pytest.mark.parametrize("solver", SOLVERS)

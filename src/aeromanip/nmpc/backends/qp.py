@@ -5,7 +5,8 @@ definite, solved by DAQP (dual active set, through CasADi) or qpOASES. Its cost 
 the rows, and in an NMPC most rows (state bounds, clearance at every stage) are far from
 binding: the solver gets first the rows near their bounds, active at the last solve (moved
 one stage on with the horizon: ``shift()``) or always wanted; rows the solution crosses
-are added and it is solved again, so the result is the full QP's. Multipliers follow
+are added and it is solved again (after ``SCREEN_ROUNDS`` the full QP is solved), so the
+result is the full QP's. Multipliers follow
 CasADi's sign convention (``> 0`` at an upper bound).
 """
 
@@ -20,7 +21,7 @@ import numpy as np
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends.codegen import Buffered, quiet_stdout
 
-SCREEN_ROUNDS = 4  # solves on screened rows, at most
+SCREEN_ROUNDS = 4  # solves on screened rows before the full QP is solved
 PADDED_SIZES = (8, 16, 24, 32, 48, 64)  # row counts of the prebuilt solvers (and m)
 CROSS_TOL = 1e-6  # a row is crossed beyond this, relative to 1 + |d|_inf
 SOLVERS: dict[str, dict[str, Any]] = {
@@ -95,7 +96,7 @@ class DenseQp:
         """Solve (see module docstring); the working set is kept for the next call."""
         res = self._active_set(H, g, A, lba, uba, lbx, ubx)
         if res.ok:
-            self.lam_a = res.lam_a
+            self.lam_a = res.lam_a.copy()  # ``reset`` must not change a returned result
         return res
 
     # -- the active-set solver ----------------------------------------------------------------
@@ -131,7 +132,7 @@ class DenseQp:
             rows = np.nonzero(near)[0]
             k = next(s for s in self._sizes if s >= rows.size)
             if k == self.m:
-                rows = np.arange(self.m)
+                break
             d, lam_r, lam_x, status = self._solve_rows(H, g, A, lba, uba, lbx, ubx, rows, k)
             if status:
                 return QpResult(d, np.zeros(self.m), lam_x, False, status)
@@ -143,7 +144,11 @@ class DenseQp:
                 lam[rows] = lam_r[: rows.size]
                 return QpResult(d, lam, lam_x, True, "")
             near |= crossed
-        return QpResult(d, np.zeros(self.m), lam_x, False, "screening did not settle")
+        # every row: the full QP (screening did not settle, or nothing was left out)
+        d, lam, lam_x, status = self._solve_rows(
+            H, g, A, lba, uba, lbx, ubx, np.arange(self.m), self.m
+        )
+        return QpResult(d, np.zeros(self.m) if status else lam, lam_x, not status, status)
 
     def _solve_rows(
         self,
