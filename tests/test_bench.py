@@ -73,7 +73,7 @@ def test_cli_bench_writes_json(tmp_path, capsys):
     ("args", "message"),
     [
         (["bench", "--variant", "fastest"], "--variant fastest: unknown"),
-        (["bench", "controller", "--duration", "0"], "--duration: must be > 0 s"),
+        (["bench", "controller", "--duration", "0"], "--duration: must be in (0, 3600] s"),
     ],
 )
 def test_bad_bench_arguments_are_one_clear_line(args, message, capsys):

@@ -28,7 +28,10 @@ def run_cli(*args, cwd=None):
             ["run", "flight", "--set", "controller.horizon=abc"],
             "controller.horizon: expected an integer, got 'abc'",
         ),
-        (["run", "flight", "--set", "controller.dt=-0.5"], "dt: must be a finite number > 0"),
+        (
+            ["run", "flight", "--set", "controller.dt=-0.5"],
+            "controller.dt: must be in [0.001, 60], got -0.5",
+        ),
         (
             ["run", "flight", "--set", "controller.strategy=lexicographic"],
             "controller.strategy: 'lexicographic' is not one of",
@@ -36,7 +39,7 @@ def run_cli(*args, cwd=None):
         (["run", "flight", "--set", "noequals"], "expected KEY=VALUE"),
         (["run", "planar", "--variant", "cond-max"], "unknown variant"),
         (["run", "flight", "--set", "initial_state=[0, 0, 1]"], "initial_state: expected 7"),
-        (["plot", "/nonexistent/dir"], "no log.csv"),
+        (["plot", "/nonexistent/dir"], "not a run directory"),
     ],
 )
 def test_bad_input_is_one_clear_line_and_exit_2(args, message, capsys):
@@ -103,7 +106,7 @@ def test_run_from_the_console_prints_summary_and_outputs(tmp_path):
 
 
 def test_replot_keeps_the_variants_in_run_order(tmp_path):
-    from aeromanip.cli import _run_order
+    from aeromanip.cli.plot import run_order as _run_order
 
     (tmp_path / "summary.json").write_text(
         '{"cond-off": {"x": 1}, "cond-default": {"x": 2}, "cond-high": {"x": 3}}'

@@ -43,4 +43,5 @@ def test_without_a_working_compiler_functions_run_in_process(tmp_path, monkeypat
     x = ca.SX.sym("x", 2)
     f = ca.Function("aeromanip_test_cc", [x], [ca.sumsqr(x)])
     assert compiled(f) is f
-    assert not list(tmp_path.iterdir())  # no library, no leftover build directory
+    left = [p.name for p in tmp_path.iterdir() if p.suffix != ".lock"]
+    assert not left  # no library, no leftover build directory (a lock file may stay)

@@ -2,13 +2,14 @@
 loaded from a scenario TOML as ``kind = "package.module:Class"`` (one file each, no edit
 of aeromanip)."""
 
+import sys
 import textwrap
 
 import numpy as np
 import pytest
 
 from aeromanip.errors import ConfigError
-from aeromanip.experiment.runner import simulate
+from aeromanip.experiment.closed_loop import simulate
 from aeromanip.experiment.scenario import load_scenarios
 from aeromanip.nmpc.backends import BACKENDS
 from aeromanip.references import REFERENCES
@@ -111,6 +112,8 @@ weight = 0.5
 def user_package(tmp_path, monkeypatch):
     for name, text in USER_FILES.items():
         (tmp_path / name).write_text(textwrap.dedent(text))
+        # a fresh module each time (class-level counters start at zero)
+        monkeypatch.delitem(sys.modules, name.removesuffix(".py"), raising=False)
     monkeypatch.syspath_prepend(str(tmp_path))
     return tmp_path
 

@@ -52,7 +52,7 @@ CASES = {
         ["joints", 2, "link", "mass"],
         -0.08,
         "joints[2].link.mass",
-        "must be >= 0, got -0.08",
+        "must be in [0, 1000] kg, got -0.08",
     ),
     "lower limit above upper": (
         ["joints", 0, "limits"],
@@ -153,7 +153,9 @@ def test_robot_table_without_file_or_prefix_keeps_plain_key_path(x8_table):
 
 
 def test_source_names_the_file(x8_table):
-    with pytest.raises(ConfigError, match=r"^my/arm\.toml: joints\[2\]\.link\.mass: must be >= 0"):
+    with pytest.raises(
+        ConfigError, match=r"^my/arm\.toml: joints\[2\]\.link\.mass: must be in \[0, 1000\] kg"
+    ):
         robot_from_table(broken(x8_table, "negative link mass"), source="my/arm.toml")
 
 

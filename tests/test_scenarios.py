@@ -224,5 +224,5 @@ def test_clearance_margin_plans_inside_the_true_limit():
     planned = [c for c in sc.problem.constraints if isinstance(c, Clearance)]
     assert sc.clearance.d_min == 0.1  # what runs are judged against
     assert [c.d_min for c in planned] == [pytest.approx(0.105)]  # what the NMPC keeps
-    with pytest.raises(ConfigError, match=r"clearance\.margin: must be >= 0 m"):
+    with pytest.raises(ConfigError, match=r"clearance\.margin: must be >= 0, got -0\.01"):
         load_scenarios("flight", ["clearance.margin=-0.01"])

@@ -97,18 +97,35 @@ class Table:
             self.resolved[name] = list(value) if isinstance(value, tuple) else value
         return value
 
-    def float(self, name: str, default: Any = _MISSING, *, finite: bool = True) -> float:
-        """A number (int or float); ``finite`` rejects inf/nan."""
-        v = self.raw(name, default)
-        return to_float(v, self.key(name), finite=finite)
+    def float(
+        self,
+        name: str,
+        default: Any = _MISSING,
+        *,
+        finite: bool = True,
+        minimum: float | None = None,
+        maximum: float | None = None,
+        positive: bool = False,
+    ) -> float:
+        """A number (int or float); ``finite`` rejects inf/nan; optionally within
+        ``[minimum, maximum]`` or ``> 0`` (``positive``)."""
+        v = to_float(self.raw(name, default), self.key(name), finite=finite)
+        check_range(v, self.key(name), minimum, maximum, positive)
+        return v
 
-    def int(self, name: str, default: Any = _MISSING, *, minimum: int | None = None) -> int:
-        """An integer, optionally at least ``minimum``."""
+    def int(
+        self,
+        name: str,
+        default: Any = _MISSING,
+        *,
+        minimum: int | None = None,
+        maximum: int | None = None,
+    ) -> int:
+        """An integer, optionally within ``[minimum, maximum]``."""
         v = self.raw(name, default)
         if isinstance(v, bool) or not isinstance(v, int):
             raise ConfigError(f"{self.key(name)}: expected an integer, got {v!r}")
-        if minimum is not None and v < minimum:
-            raise ConfigError(f"{self.key(name)}: must be >= {minimum}, got {v}")
+        check_range(v, self.key(name), minimum, maximum)
         return v
 
     def str(self, name: str, default: Any = _MISSING, *, choices: tuple[str, ...] = ()) -> str:
@@ -167,6 +184,25 @@ class Table:
             close = difflib.get_close_matches(unknown[0], sorted(self._used), n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise ConfigError(f"{self.key(unknown[0])}: unknown key{hint}")
+
+
+def check_range(
+    v: float,
+    path: str,
+    minimum: float | None = None,
+    maximum: float | None = None,
+    positive: bool = False,
+) -> None:
+    """A ``ConfigError`` naming ``path``, the value and the allowed range if ``v`` is
+    outside ``[minimum, maximum]`` (or not > 0 with ``positive``)."""
+    if positive and not v > (minimum or 0.0):
+        raise ConfigError(f"{path}: must be > {minimum or 0:g}, got {v!r}")
+    if minimum is not None and maximum is not None and not minimum <= v <= maximum:
+        raise ConfigError(f"{path}: must be in [{minimum:g}, {maximum:g}], got {v!r}")
+    if minimum is not None and v < minimum:
+        raise ConfigError(f"{path}: must be >= {minimum:g}, got {v!r}")
+    if maximum is not None and v > maximum:
+        raise ConfigError(f"{path}: must be <= {maximum:g}, got {v!r}")
 
 
 def to_float(v: Any, path: str, *, finite: bool = True) -> float:

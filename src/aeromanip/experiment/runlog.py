@@ -11,6 +11,7 @@ NMPC DoFs, e.g. ``["y", "z", "q1", "q2"]``), ``waypoints`` ([[x, y, z], ...]),
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import re
@@ -25,7 +26,7 @@ from aeromanip.errors import ConfigError
 LOG_FILE = "log.csv"
 META_FILE = "meta.json"
 SUMMARY_FILE = "summary.json"
-TEXT_COLUMNS: frozenset[str] = frozenset({"status"})
+TEXT_COLUMNS: frozenset[str] = frozenset({"status", "message"})
 """Columns always stored as text."""
 
 _JOINT = re.compile(r"q([1-9][0-9]*)")
@@ -156,32 +157,36 @@ class RunLog:
             w = csv.writer(f, lineterminator="\n")
             w.writerow(self.names)
             w.writerows(zip(*texts, strict=True))
-        (d / META_FILE).write_text(json.dumps(_jsonable(self.meta), indent=2) + "\n")
+        (d / META_FILE).write_text(json.dumps(jsonable(self.meta), indent=2) + "\n")
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> RunLog:
-        """Read a run directory (or its ``log.csv``) written by ``save``."""
+    def load(cls, path: str | Path, require_rows: bool = False) -> RunLog:
+        """Read a run directory (or its ``log.csv``) written by ``save`` or streamed by
+        ``LogWriter`` (a last line cut short by a crash is dropped). A log without rows
+        is an error with ``require_rows``; so is a malformed ``meta.json``."""
         p = Path(path)
         d, f = (p.parent, p) if p.suffix == ".csv" else (p, p / LOG_FILE)
         try:
             with f.open(newline="") as fh:
-                rows = list(csv.reader(fh))
-        except OSError as e:
-            raise ConfigError(f"{f}: cannot read run log: {e.strerror}") from None
+                text = fh.read()
+            rows = list(csv.reader(io.StringIO(text, newline="")))
+        except (OSError, UnicodeDecodeError, csv.Error) as e:
+            raise ConfigError(
+                f"{f}: cannot read run log: {getattr(e, 'strerror', None) or e}"
+            ) from None
         if not rows:
             raise ConfigError(f"{f}: empty run log (no header)")
         header, body = rows[0], rows[1:]
+        if body and not text.endswith("\n"):  # the last row of a run cut short
+            body = body[:-1]
         for i, r in enumerate(body):
             if len(r) != len(header):
                 raise ConfigError(f"{f}: line {i + 2}: {len(r)} fields, header has {len(header)}")
-        cols: dict[str, np.ndarray] = {}
-        for j, name in enumerate(header):
-            values = [r[j] for r in body]
-            cols[name] = _parse_column(name, values)
-        meta_path = d / META_FILE
-        meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
-        return cls(cols, meta)
+        if require_rows and not body:
+            raise ConfigError(f"{f}: the run log has no rows (the run flew no step)")
+        cols = {name: _parse_column(name, [r[j] for r in body]) for j, name in enumerate(header)}
+        return cls(cols, _load_meta(d / META_FILE))
 
     # ---------------------------------------------------------------- metrics
     def summary(self) -> dict[str, Any]:
@@ -207,6 +212,8 @@ class RunLog:
         s["solve_ms_max"] = _nan_or(ms, lambda m: float(np.nanmax(m)))
         status = self.columns.get("status")
         s["solver_failures"] = int(np.sum(status != "ok")) if status is not None else 0
+        names, counts = np.unique(status, return_counts=True) if status is not None else ([], [])
+        s["steps_by_status"] = {str(n): int(c) for n, c in zip(names, counts, strict=True)}
         if "roll" in self.columns and "pitch" in self.columns:
             rp = np.degrees(self._norm(("roll", "pitch")))
             s["roll_pitch_mean_deg"] = _nan_or(rp, lambda a: float(np.nanmean(a)))
@@ -309,7 +316,7 @@ def write_summary(out_dir: str | Path, summary: Mapping[str, Any]) -> Path:
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
     path = d / SUMMARY_FILE
-    path.write_text(json.dumps(_jsonable(dict(summary)), indent=2) + "\n")
+    path.write_text(json.dumps(jsonable(dict(summary)), indent=2) + "\n")
     return path
 
 
@@ -322,6 +329,19 @@ def read_summary(path: str | Path) -> dict[str, Any]:
     except OSError as e:
         raise ConfigError(f"{f}: cannot read summary: {e.strerror}") from None
     return {k: math.nan if v is None else v for k, v in data.items()}
+
+
+def _load_meta(path: Path) -> dict[str, Any]:
+    """``meta.json`` (empty if absent); malformed is a ``ConfigError``."""
+    if not path.exists():
+        return {}
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise ConfigError(f"{path}: cannot read run metadata: {e}") from None
+    if not isinstance(meta, dict):
+        raise ConfigError(f"{path}: run metadata must be a JSON object")
+    return meta
 
 
 def _nan_or(values: np.ndarray | None, fn: Any) -> float:
@@ -352,14 +372,14 @@ def _parse_column(name: str, values: list[str]) -> np.ndarray:
         return np.array(values, dtype=str)
 
 
-def _jsonable(v: Any) -> Any:
+def jsonable(v: Any) -> Any:
     """Convert numpy values to plain Python, non-finite floats to None (strict JSON)."""
     if isinstance(v, Mapping):
-        return {str(k): _jsonable(x) for k, x in v.items()}
+        return {str(k): jsonable(x) for k, x in v.items()}
     if isinstance(v, np.ndarray):
-        return _jsonable(v.tolist())
+        return jsonable(v.tolist())
     if isinstance(v, list | tuple):
-        return [_jsonable(x) for x in v]
+        return [jsonable(x) for x in v]
     if isinstance(v, np.generic):
         v = v.item()
     if isinstance(v, float) and not math.isfinite(v):

@@ -39,7 +39,7 @@ from aeromanip.experiment.sources import builtin_scenarios, expand_variants, sce
 from aeromanip.nmpc.backends import BACKENDS
 from aeromanip.nmpc.constraints import D_MIN, Bounds, Clearance
 from aeromanip.nmpc.problem import Problem
-from aeromanip.nmpc.strategies import ABS_TOL, MODE, REL_TOL
+from aeromanip.nmpc.strategies import ABS_TOL, MAX_ABS_TOL, MAX_REL_TOL, MODE, REL_TOL
 from aeromanip.nmpc.transcription import MODES
 from aeromanip.references import Reference, reference_from_table
 from aeromanip.robot.loader import robot_from_table
@@ -50,6 +50,12 @@ from aeromanip.tasks import TASKS, EndEffectorTracking
 __all__ = ["Scenario", "build_scenario", "builtin_scenarios", "load_scenarios"]
 
 STRATEGIES = ("weighted", "hierarchical")
+MIN_DT = 1e-3  # [s] the fastest control period (1 kHz)
+MAX_DT = 60.0  # [s]
+MAX_HORIZON = 500  # steps (the NLP grows with it: N = 100 covers 5 s at 20 Hz)
+MAX_DURATION = 1e6  # [s] about 11.6 days
+MAX_STEPS = 10_000_000  # control steps in one run
+MAX_FAILURE_RATIO = 0.05  # a run with more failed steps than this share did not fly
 
 
 @dataclass
@@ -73,6 +79,7 @@ class Scenario:
     tracked: str
     clearance: Clearance | None
     limits: Bounds
+    max_failure_ratio: float = MAX_FAILURE_RATIO
     resolved: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -107,24 +114,26 @@ def _robot(t: Table, base_dir: Path) -> RobotSpec:
 
 def _controller(t: Table) -> ControllerSettings:
     ct = t.table("controller")
-    horizon, dt = ct.int("horizon", minimum=1), ct.float("dt")
+    horizon = ct.int("horizon", minimum=1, maximum=MAX_HORIZON)
+    dt = ct.float("dt", minimum=MIN_DT, maximum=MAX_DT)
     strategy = ct.str("strategy", "weighted", choices=STRATEGIES)
     backend = ct.str("backend", "ipopt")
-    BACKENDS.get(backend, ct.key("backend"))  # a known name, or a class that loads
+    backend_cls = BACKENDS.get(backend, ct.key("backend"))  # known, or a class that loads
     budget = ct.raw("time_budget", None)
-    budget = None if budget is None else ct.float("time_budget")
+    budget = None if budget is None else ct.float("time_budget", positive=True)
     hierarchy = {}
     if strategy == "hierarchical" or ct.has("hierarchy"):
         ht = ct.table("hierarchy", {})
         hierarchy = {
             "mode": ht.str("mode", MODE, choices=MODES),
-            "rel_tol": ht.float("rel_tol", REL_TOL),
-            "abs_tol": ht.float("abs_tol", ABS_TOL),
+            "rel_tol": ht.float("rel_tol", REL_TOL, minimum=0.0, maximum=MAX_REL_TOL),
+            "abs_tol": ht.float("abs_tol", ABS_TOL, minimum=0.0, maximum=MAX_ABS_TOL),
         }
         ht.done()
         if strategy != "hierarchical":
             hierarchy = {}  # a weighted variant of a hierarchical scenario: not used
     solver_options = dict(ct.table("solver_options", {}).data)
+    backend_cls.check_options(solver_options)  # before anything is built
     ct.resolved["solver_options"] = solver_options
     ct.done()
     return ControllerSettings(horizon, dt, strategy, backend, budget, hierarchy, solver_options)
@@ -193,25 +202,43 @@ def _clearance(t: Table, problem: Problem) -> Clearance | None:
     cl = t.table("clearance")
     points = cl.raw("points", None)
     if points is not None and (
-        not isinstance(points, list) or not all(isinstance(p, str) for p in points)
+        not isinstance(points, list) or not points or not all(isinstance(p, str) for p in points)
     ):
-        raise ConfigError(f"{cl.key('points')}: expected an array of point names")
+        raise ConfigError(f"{cl.key('points')}: expected a non-empty array of point names")
     clearance = Clearance(cl.float("d_min", D_MIN), points)
-    margin = cl.float("margin", 0.0)
-    if margin < 0.0:
-        raise ConfigError(f"{cl.key('margin')}: must be >= 0 m, got {margin}")
+    problem.kin.clearance(points)  # unknown point names fail here, naming the key
+    margin = cl.float("margin", 0.0, minimum=0.0)
     cl.done()
     # the NMPC keeps margin more than d_min: a real arm lags its plan a little
     problem.add_constraint(Clearance(clearance.d_min + margin, points))
     return clearance
 
 
+def _initial_state(
+    t: Table, problem: Problem, bounds: Bounds, clearance: Clearance | None
+) -> np.ndarray:
+    """``initial_state``: inside the state bounds and the clearance constraint."""
+    x0 = np.array(t.floats("initial_state", size=problem.robot.nx))
+    if bounds.violation(x0) > 0:
+        raise ConfigError(f"initial_state: outside the state bounds by {bounds.violation(x0):.3g}")
+    if clearance is not None:
+        depth = float(np.min(np.asarray(problem.kin.clearance(clearance.points)(x0))))
+        if depth < clearance.d_min:
+            raise ConfigError(
+                f"initial_state: an arm point is {depth:.4g} m below the base, "
+                f"clearance.d_min is {clearance.d_min:g} m"
+            )
+    return x0
+
+
 def _simulation(t: Table, robot: RobotSpec) -> tuple[str, dict[str, Any]]:
     """The simulator's name and the ``[physics]`` options (read even when not used)."""
     sim = t.str("sim", "kinematic")
-    SIMULATORS.get(sim, t.key("sim"))
+    cls = SIMULATORS.get(sim, t.key("sim"))
     physics = dict(t.table("physics", {}).data)
     t.resolved["physics"] = physics
+    if cls.options_table == "physics":  # checked now, built when the run starts
+        cls.check_options(physics)
     return sim, physics
 
 
@@ -219,6 +246,8 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
     """Build a ``Scenario`` from one variant's table; errors name the key path."""
     t = Table(data)
     name, description = t.str("name"), t.str("description", "")
+    if not name or "/" in name or name in (".", ".."):
+        raise ConfigError(f"name: {name!r} must be a non-empty name without '/' (a directory)")
     robot = _robot(t, base_dir)
     cs = _controller(t)
     limits, bounds = _bounds(t, robot)
@@ -226,13 +255,15 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
     reference = reference_from_table(t.table("reference"), base_dir=base_dir)
     tracked = _tasks(t, problem, reference)
     clearance = _clearance(t, problem)
-    x0 = np.array(t.floats("initial_state", size=robot.nx))
-    if bounds.violation(x0) > 0:
-        raise ConfigError(f"initial_state: outside the state bounds by {bounds.violation(x0):.3g}")
+    x0 = _initial_state(t, problem, bounds, clearance)
     sim, physics = _simulation(t, robot)
-    duration = t.float("duration")
-    if duration < cs.dt:
-        raise ConfigError(f"duration: must be at least one control period ({cs.dt} s)")
+    duration = t.float("duration", minimum=cs.dt, maximum=MAX_DURATION)
+    if duration / cs.dt > MAX_STEPS:
+        raise ConfigError(
+            f"duration: {duration:g} s at controller.dt = {cs.dt:g} s is "
+            f"{duration / cs.dt:.3g} steps; at most {MAX_STEPS:g} in one run"
+        )
+    max_failure_ratio = t.float("max_failure_ratio", MAX_FAILURE_RATIO, minimum=0.0, maximum=1.0)
     t.done()
     resolved = dict(t.resolved)
     if variant:
@@ -255,6 +286,7 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
         tracked=tracked,
         clearance=clearance,
         limits=limits,
+        max_failure_ratio=max_failure_ratio,
         resolved=resolved,
     )
 

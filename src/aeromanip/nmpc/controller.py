@@ -96,7 +96,11 @@ class Controller:
         self.strategy.reset()
 
     def _vector(self, v: Any, what: str) -> np.ndarray:
-        a = np.asarray(v, dtype=float).ravel()
+        """``v`` as nx finite floats, or a ``StateError`` naming what is wrong."""
+        try:
+            a = np.asarray(v, dtype=float).ravel()
+        except (TypeError, ValueError):
+            raise StateError(f"{what}: expected {self.nx} numbers, got {v!r:.60}") from None
         if a.shape != (self.nx,):
             names = ", ".join(self.problem.robot.state_names)
             raise StateError(f"{what}: expected {self.nx} values ({names}), got {a.size}")
@@ -134,8 +138,8 @@ class Controller:
     def step(self, state: Any, t: float) -> Command:
         """Solve the NMPC at time ``t`` [s] from ``state`` and return the command to apply."""
         x0 = self._vector(state, "state")
-        if not np.isfinite(t):
-            raise StateError(f"t: must be finite, got {t}")
+        if isinstance(t, bool) or not isinstance(t, int | float | np.number) or not np.isfinite(t):
+            raise StateError(f"t: must be a finite number of seconds, got {t!r}")
         tr = self.strategy.transcription
         p = tr.parameters(x0, self.u_prev, self.problem.stage_params(t))
         res: StrategyResult = self.strategy.solve(p, self.initial_guesses(x0))

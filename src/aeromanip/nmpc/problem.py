@@ -20,6 +20,7 @@ from aeromanip.robot.spec import RobotSpec
 from aeromanip.tasks.base import Task
 
 Weight = float | Sequence[float] | Mapping[str, float]
+MAX_WEIGHT = 1e9  # larger weights only wreck the NLP's scaling
 
 
 @dataclass
@@ -118,8 +119,8 @@ class Problem:
             )
             if w.shape != (size,):
                 raise ConfigError(f"{path}: expected 1 or {size} values, got {w.size}")
-        if not np.all(np.isfinite(w)) or np.any(w < 0):
-            raise ConfigError(f"{path}: weights must be finite and >= 0, got {w.tolist()}")
+        if not np.all(np.isfinite(w)) or np.any(w < 0) or np.any(w > MAX_WEIGHT):
+            raise ConfigError(f"{path}: weights must be in [0, {MAX_WEIGHT:g}], got {w.tolist()}")
         return w
 
     @property

@@ -38,6 +38,8 @@ from aeromanip.nmpc.transcription import Transcription
 MODE = "stagewise"  # the paper's form: one cost bound per predicted step
 REL_TOL = 1e-3  # relative relaxation of a higher level's optimal cost
 ABS_TOL = 1e-6  # absolute relaxation (where the optimum is ~0)
+MAX_REL_TOL = 1.0  # a level may double the higher optimum at most: beyond, no hierarchy
+MAX_ABS_TOL = 1e6  # [cost units]
 
 
 @dataclass
@@ -166,8 +168,10 @@ class Hierarchical:
     ) -> None:
         if not problem.levels:
             raise ConfigError("tasks: a hierarchy needs at least one task with a level")
-        if rel_tol < 0 or abs_tol <= 0:
-            raise ConfigError("hierarchy: rel_tol must be >= 0 and abs_tol > 0")
+        if not 0 <= rel_tol <= MAX_REL_TOL:
+            raise ConfigError(f"hierarchy.rel_tol: must be in [0, {MAX_REL_TOL:g}], got {rel_tol}")
+        if not 0 <= abs_tol <= MAX_ABS_TOL:
+            raise ConfigError(f"hierarchy.abs_tol: must be in [0, {MAX_ABS_TOL:g}], got {abs_tol}")
         self.problem, self.mode = problem, mode
         self.rel_tol, self.abs_tol = rel_tol, abs_tol
         reg = [e for e in problem.entries if e.level is None]

@@ -12,12 +12,20 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from aeromanip.errors import ConfigError
 
 PLATFORM_DOFS: tuple[str, ...] = ("x", "y", "z", "yaw")
 """Every platform DoF the NMPC may control, in state order."""
 
 Vec3 = tuple[float, float, float]
+MAX_PLATFORM_MASS = 1e4  # [kg]
+MAX_LINK_MASS = 1e3  # [kg]
+# principal moments may miss the triangle inequality by this share of the largest one:
+# hand-written and CAD-exported inertias round (the MJCF balances what is left)
+INERTIA_SLACK = 0.01
+MOUNT_LINK = "arm_mount_link"  # the link the first arm joint hangs from, in exports
 
 
 @dataclass(frozen=True)
@@ -164,22 +172,33 @@ def validate(spec: RobotSpec) -> None:
         raise ConfigError("joints: the arm needs at least one joint")
     for attr, key in _FRAME_KEYS.items():
         _vec(getattr(spec, attr), key)
-    link_names: set[str] = {spec.base_link, spec.ee_link}
-    joint_names: set[str] = set()
+    names: set[str] = set()  # links and joints share one namespace (TF frames, MJCF)
+    for key, nm in (("base_link", spec.base_link), ("end_effector.name", spec.ee_link)):
+        _new_name(nm, key, names, spec)
     for i, j in enumerate(spec.joints):
         p = f"joints[{i}]"
         _validate_joint(j, p)
-        for nm, key, names in (
-            (j.name, "name", joint_names),
-            (j.link_name, "link.name", link_names),
-        ):
-            if not nm:
-                raise ConfigError(f"{p}.{key}: must be a non-empty string")
-            if nm in names:
-                raise ConfigError(f"{p}.{key}: name {nm!r} is used twice")
-            names.add(nm)
+        _new_name(j.name, f"{p}.name", names, spec)
+        _new_name(j.link_name, f"{p}.link.name", names, spec)
     if spec.arm_mass <= 0:
         raise ConfigError("joints[*].link.mass: the arm must have a positive total mass")
+
+
+def _new_name(name: str, key: str, seen: set[str], spec: RobotSpec) -> None:
+    """A link or joint name: non-empty, unused, not reserved by the URDF export."""
+    if not name:
+        raise ConfigError(f"{key}: must be a non-empty string")
+    if name in seen:
+        raise ConfigError(f"{key}: name {name!r} is used twice (links and joints included)")
+    if name in reserved_names(spec.ee_link):
+        raise ConfigError(f"{key}: name {name!r} is reserved by the URDF export")
+    seen.add(name)
+
+
+def reserved_names(ee_link: str) -> set[str]:
+    """Link and joint names the URDF export adds to a robot's own."""
+    out = {MOUNT_LINK, "arm_mount", f"{ee_link}_joint", "platform_fixed", "world"}
+    return out | {f"platform_{d}{s}" for d in PLATFORM_DOFS for s in ("", "_link")}
 
 
 def _validate_platform(pf: Platform) -> None:
@@ -203,11 +222,12 @@ def _validate_platform(pf: Platform) -> None:
             raise ConfigError(f"platform.velocity.{k}: unknown platform DoF")
         if not (v > 0 and math.isfinite(v)):
             raise ConfigError(f"platform.velocity.{k}: must be a finite number > 0, got {v}")
-    if not pf.mass > 0:
-        raise ConfigError(f"platform.mass: must be > 0, got {pf.mass}")
+    if not 0 < pf.mass <= MAX_PLATFORM_MASS:
+        raise ConfigError(f"platform.mass: must be in (0, {MAX_PLATFORM_MASS:g}] kg, got {pf.mass}")
     _vec(pf.inertia, "platform.inertia")
     if min(pf.inertia) <= 0:
         raise ConfigError("platform.inertia: every entry must be > 0")
+    _physical_inertia((*pf.inertia, 0.0, 0.0, 0.0), "platform.inertia")
     if not pf.arm_length > 0:
         raise ConfigError(f"platform.arm_length: must be > 0, got {pf.arm_length}")
     n = pf.rotors
@@ -232,10 +252,29 @@ def _validate_joint(j: Joint, p: str) -> None:
         raise ConfigError(f"{p}.limits: lower {j.lower} is above upper {j.upper}")
     if not (j.velocity > 0 and math.isfinite(j.velocity)):
         raise ConfigError(f"{p}.velocity: must be a finite number > 0, got {j.velocity}")
-    if not (j.link.mass >= 0 and math.isfinite(j.link.mass)):
-        raise ConfigError(f"{p}.link.mass: must be >= 0, got {j.link.mass}")
+    if not 0 <= j.link.mass <= MAX_LINK_MASS:
+        raise ConfigError(f"{p}.link.mass: must be in [0, {MAX_LINK_MASS:g}] kg, got {j.link.mass}")
     _vec(j.link.com, f"{p}.link.com")
     if len(j.link.inertia) != 6:
         raise ConfigError(f"{p}.link.inertia: must be [ixx, iyy, izz, ixy, ixz, iyz]")
     if min(j.link.inertia[:3]) < 0:
         raise ConfigError(f"{p}.link.inertia: diagonal entries must be >= 0")
+    _physical_inertia(j.link.inertia, f"{p}.link.inertia")
+
+
+def _physical_inertia(ii: Sequence[float], key: str) -> None:
+    """Finite, positive semi-definite, principal moments obeying the triangle inequality
+    (``I1 + I2 >= I3``: what any mass distribution gives)."""
+    for k, v in enumerate(ii):
+        _finite(v, f"{key}[{k}]")
+    ixx, iyy, izz, ixy, ixz, iyz = ii
+    m = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    lam = np.linalg.eigvalsh(m)
+    tol = 1e-9 * max(float(np.abs(lam).max()), 1e-12)
+    if lam[0] < -tol:
+        raise ConfigError(f"{key}: not positive semi-definite (principal moments {lam.tolist()})")
+    if lam[0] + lam[1] < (1.0 - INERTIA_SLACK) * lam[2] - tol:
+        raise ConfigError(
+            f"{key}: principal moments {lam.tolist()} break the triangle inequality "
+            "I1 + I2 >= I3 (no mass distribution has them)"
+        )

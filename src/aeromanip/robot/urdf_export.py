@@ -15,12 +15,18 @@ import xml.etree.ElementTree as ET
 import numpy as np
 
 from aeromanip.errors import ConfigError
-from aeromanip.robot.spec import PLATFORM_DOFS, Inertial, RobotSpec, Vec3
+from aeromanip.robot.spec import (
+    MOUNT_LINK,
+    PLATFORM_DOFS,
+    Inertial,
+    RobotSpec,
+    Vec3,
+    reserved_names,
+)
 from aeromanip.robot.urdf import matrix_to_rpy
 
 _ZERO3: Vec3 = (0.0, 0.0, 0.0)
 
-MOUNT_LINK = "arm_mount_link"  # exported link the first arm joint hangs from
 VIRTUAL_MASS = 1e-3  # [kg] virtual links between platform joints (importers need mass > 0)
 VIRTUAL_INERTIA = 1e-6  # [kg m^2] their principal inertia
 VIRTUAL_LIMIT = 1e3  # [m] position limit of the virtual prismatic platform joints
@@ -98,8 +104,7 @@ def robot_to_urdf(
     extension (keep every link as a body, discard visuals), ignored by other URDF tools.
     Arm joints get ``effort="10"`` [N m] (URDF requires one; aeromanip does not use it).
     """
-    ours = {MOUNT_LINK, "arm_mount", f"{spec.ee_link}_joint", "platform_fixed", "world"}
-    ours |= {f"platform_{d}{s}" for d in PLATFORM_DOFS for s in ("", "_link")}
+    ours = reserved_names(spec.ee_link)
     clash = sorted(
         ours
         & {spec.base_link, spec.ee_link, *(n for j in spec.joints for n in (j.name, j.link_name))}

@@ -33,6 +33,14 @@ class Simulator(ABC):
     options_table: str | None = None
 
     @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> dict[str, Any]:
+        """The options checked without building anything (``ConfigError`` naming the
+        key); by default a simulator takes none."""
+        if options:
+            raise ConfigError(f"{cls.kind}: takes no options, got {sorted(options)}")
+        return {}
+
+    @classmethod
     def from_options(cls, spec: RobotSpec, options: Mapping[str, Any]) -> Simulator:
         """Build for ``spec`` from its options table (see ``options_table``)."""
         if options:

@@ -32,6 +32,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from aeromanip.config import check_range
 from aeromanip.errors import ConfigError, StateError
 from aeromanip.robot.spec import PLATFORM_DOFS, RobotSpec
 from aeromanip.sim.base import SIMULATORS, Simulator
@@ -45,6 +46,9 @@ OPTION_KEYS = (
 SERVO_I = 4.0  # [1/s] servo integral gain relative to kp (ki = SERVO_I kp)
 RATE_HZ = 500.0  # [Hz] default physics and attitude/rate-loop rate
 MIN_RATE_HZ = 100.0  # [Hz] lowest accepted physics rate
+MAX_RATE_HZ = 10_000.0  # [Hz] highest (every step runs Python)
+MAX_SERVO_I = 100.0  # [1/s]
+MAX_NOISE = 1.0  # [m or rad] a feedback noise std beyond this is no measurement
 OUTER_RATE_HZ = 100.0  # [Hz] default rate of the position/velocity loop
 MIN_OUTER_RATE_HZ = 10.0  # [Hz] lowest accepted outer-loop rate (position bandwidth ~0.35 Hz)
 
@@ -53,11 +57,10 @@ def _yaw_of(qw: float, qx: float, qy: float, qz: float) -> float:
     return math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
 
 
-def _number(value: Any, path: str, low: float | None = None) -> float:
+def _number(value: Any, path: str, low: float | None = None, high: float | None = None) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ConfigError(f"{path}: must be a finite number, got {value!r}")
-    if low is not None and value < low:
-        raise ConfigError(f"{path}: must be >= {low}, got {value}")
+    check_range(value, path, low, high)
     return float(value)
 
 
@@ -130,7 +133,7 @@ class PhysicsSimulator(Simulator):
         servo_i: float,
     ) -> None:
         """Check the options (errors name the ``physics.*`` key) and keep them."""
-        self.rate_hz = _number(rate_hz, "physics.rate_hz", MIN_RATE_HZ)
+        self.rate_hz = _number(rate_hz, "physics.rate_hz", MIN_RATE_HZ, MAX_RATE_HZ)
         outer = _number(outer_rate_hz, "physics.outer_rate_hz", MIN_OUTER_RATE_HZ)
         if outer > self.rate_hz:
             raise ConfigError(
@@ -187,7 +190,13 @@ class PhysicsSimulator(Simulator):
 
     @classmethod
     def from_options(cls, spec: RobotSpec, options: Mapping[str, Any]) -> PhysicsSimulator:
-        """Build from a ``[physics]`` table (keys ``OPTION_KEYS``); unknown key: ConfigError."""
+        """Build from a ``[physics]`` table (keys ``OPTION_KEYS``); see ``check_options``."""
+        return cls(spec, **cls.check_options(options))
+
+    @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> dict[str, Any]:
+        """The ``[physics]`` table as keyword arguments, checked without building
+        anything: unknown keys, types and ranges are one ``ConfigError`` line each."""
         kwargs: dict[str, Any] = {}
         for key, value in options.items():
             if key not in OPTION_KEYS:
@@ -201,7 +210,20 @@ class PhysicsSimulator(Simulator):
             kwargs[key] = value
         if "gains" in kwargs:
             kwargs["gains"] = FlightGains.from_options(dict(kwargs["gains"]))
-        return cls(spec, **kwargs)
+        rate = _number(kwargs.get("rate_hz", RATE_HZ), "physics.rate_hz", MIN_RATE_HZ, MAX_RATE_HZ)
+        _number(
+            kwargs.get("outer_rate_hz", OUTER_RATE_HZ),
+            "physics.outer_rate_hz",
+            MIN_OUTER_RATE_HZ,
+            rate,
+        )
+        _number(kwargs.get("servo_hz", SERVO_HZ), "physics.servo_hz", 0.1, rate / 2.0)
+        _number(kwargs.get("servo_i", SERVO_I), "physics.servo_i", 0.0, MAX_SERVO_I)
+        for k, v in dict(kwargs.get("noise", {})).items():
+            if k not in NOISE_KEYS:
+                raise ConfigError(f"physics.noise.{k}: unknown key (choose from {NOISE_KEYS})")
+            _number(v, f"physics.noise.{k}", 0.0, MAX_NOISE)
+        return kwargs
 
     def _make_controller(self, inertia: np.ndarray) -> FlightController:
         return FlightController(

@@ -7,6 +7,7 @@ from collections.abc import Sequence
 import casadi as ca
 
 from aeromanip.config import Table
+from aeromanip.errors import ConfigError
 from aeromanip.references import Reference
 from aeromanip.tasks.base import TASKS, Stage, Task
 
@@ -14,6 +15,15 @@ TRACKED = "xyz"  # the coordinates whose Jacobian rows make J_eq
 EPS = 1e-9  # [units of D] keeps 1/D finite at singular configurations
 DELTA = 1e-9  # [units of J_eq J_eq^T] keeps rho finite at singular configurations
 KINK = 1e-4  # rounding of rho's kinks (spectral.py), so that Newton-type solvers converge
+MAX_KINK = 0.1  # a 10 % rounding of rho already blurs it
+
+
+def _check(value: float, key: str, low: float, high: float) -> float:
+    """``value`` as a float in ``[low, high]``, or a ``ConfigError`` naming ``key``."""
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and low <= value <= high
+    if not ok:
+        raise ConfigError(f"tasks.{key}: must be a number in [{low:g}, {high:g}], got {value!r}")
+    return float(value)
 
 
 @TASKS.register("manipulability")
@@ -28,7 +38,7 @@ class Manipulability(Task):
 
     def __init__(self, tracked: str | Sequence[str] = TRACKED, eps: float = EPS) -> None:
         self.tracked = tracked
-        self.eps = eps
+        self.eps = _check(eps, "eps", 0.0, 1.0)
 
     def residual(self, stage: Stage) -> ca.SX:
         """``1 / (D + eps)``."""
@@ -57,8 +67,8 @@ class ConditionNumber(Task):
         self, tracked: str | Sequence[str] = TRACKED, delta: float = DELTA, kink: float = KINK
     ) -> None:
         self.tracked = tracked
-        self.delta = delta
-        self.kink = kink
+        self.delta = _check(delta, "delta", 0.0, 1.0)
+        self.kink = _check(kink, "kink", 0.0, MAX_KINK)
 
     def residual(self, stage: Stage) -> ca.SX:
         """``1 - rho``."""

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from aeromanip.errors import ConfigError
 from aeromanip.nmpc.transcription import Transcription
 from aeromanip.registry import Registry
 
@@ -53,6 +54,13 @@ class Backend(ABC):
     def __init__(
         self, transcription: Transcription, options: Mapping[str, Any] | None = None
     ) -> None: ...
+
+    @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """Raise ``ConfigError`` (one line naming the key) for options this backend
+        cannot take; called before anything is built. By default: any table."""
+        if not isinstance(options, Mapping):
+            raise ConfigError(f"solver_options: must be a table, got {options!r}")
 
     @abstractmethod
     def solve(

@@ -4,7 +4,9 @@
 CasADi generates is built with the system C compiler (``$CC``, default ``gcc``) at
 ``-O2`` into ``<cache>/<name>-<hash>.so``, where the hash covers the Function's
 serialisation (so it changes with the problem: robot, tasks, weights, horizon...), the
-CasADi version and the compiler flags. Later processes load the cached library at once.
+CasADi version and the compiler flags. Later processes load the cached library at once,
+after checking it against its recorded checksum (``nmpc.backends.cache``: damaged entries
+are rebuilt, concurrent builders of one entry wait for each other).
 
 The cache directory is ``$AEROMANIP_CACHE`` or ``~/.cache/aeromanip``. Without a working
 compiler (or with ``AEROMANIP_CODEGEN=0``) the in-process Function is returned unchanged,
@@ -28,9 +30,12 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from aeromanip.nmpc.backends.cache import CacheEntry
+
 log = logging.getLogger(__name__)
 
 CFLAGS = ("-O2", "-fPIC", "-shared")
+BUILD_TIMEOUT_S = 1200  # [s] a compiler running longer is killed (the Function runs in-process)
 _warned: set[str] = set()
 
 
@@ -70,37 +75,68 @@ def compiled(f: ca.Function, enabled: bool = True) -> ca.Function:
 
 
 def compiled_all(fs: Sequence[ca.Function], enabled: bool = True) -> list[ca.Function]:
-    """``compiled`` for several Functions, the missing ones built in parallel."""
+    """``compiled`` for several Functions, the missing ones built in parallel.
+
+    Every entry is verified before it is loaded (a damaged one is rebuilt); entries
+    another process is building are waited for, then loaded; an interrupt kills the
+    compilers and removes their build directories before it goes on up.
+    """
     if not enabled or os.environ.get("AEROMANIP_CODEGEN", "1") == "0":
         return list(fs)
     cc = _compiler()
     if cc is None:
         _warn_once("codegen: no C compiler found; evaluating CasADi Functions in-process")
         return list(fs)
-    jobs = []
-    for f in fs:
-        lib = cache_dir() / f"{f.name()}-{_key(f, cc)}.so"
-        job = None
-        if not lib.is_file():
+    entries = [CacheEntry(cache_dir() / f"{f.name()}-{_key(f, cc)}.so") for f in fs]
+    missing = sorted({e.lib for e in entries if not e.valid()})  # one lock order: no deadlock
+    with contextlib.ExitStack() as locks:
+        for lib in missing:
+            locks.enter_context(CacheEntry(lib).locked())
+        todo = [(f, e) for f, e in zip(fs, entries, strict=True) if not e.valid()]
+        failed = _build_all(todo, cc)
+    return [_load(f, e, f.name() not in failed) for f, e in zip(fs, entries, strict=True)]
+
+
+def _build_all(todo: list[tuple[ca.Function, CacheEntry]], cc: str) -> set[str]:
+    """Build the entries (their locks held); return the names that failed."""
+    jobs: list[tuple[ca.Function, CacheEntry, subprocess.Popen, str, Path]] = []
+    failed: set[str] = set()
+    try:
+        for f, entry in todo:
+            entry.discard()
             try:
-                job = _start(f, cc, lib)
+                jobs.append((f, entry, *_start(f, cc, entry.lib)))
             except OSError as e:
                 _warn_once(f"codegen: compiling {f.name()} failed ({e}); evaluating in-process")
-                jobs.append((f, None, None))
-                continue
-        jobs.append((f, lib, job))
-    out = []
-    for f, lib, job in jobs:
-        if job is not None and not _finish(f, lib, *job):
-            lib = None
-        out.append(f if lib is None else ca.external(f.name(), str(lib)))
-    return out
+                failed.add(f.name())
+        for f, entry, proc, _, out in jobs:
+            if not _finish(f, entry, proc, out):
+                failed.add(f.name())
+    finally:  # normal end or an interrupt: no compiler left running, no build directory
+        for _, _, proc, tmp, _ in jobs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            shutil.rmtree(tmp, ignore_errors=True)
+    return failed
+
+
+def _load(f: ca.Function, entry: CacheEntry, ok: bool) -> ca.Function:
+    """The compiled twin of ``f`` from a verified entry, or ``f`` itself if none."""
+    if not ok or not entry.valid():
+        return f
+    try:
+        return ca.external(f.name(), str(entry.lib))
+    except RuntimeError as e:  # a verified library that will not load: not ours
+        entry.discard()
+        first = str(e).strip().splitlines()[-1:] or ["?"]
+        _warn_once(f"codegen: loading {entry.lib.name} failed ({first[0]}); evaluating in-process")
+        return f
 
 
 def _start(f: ca.Function, cc: str, lib: Path) -> tuple[subprocess.Popen, str, Path]:
-    """Generate the C source of ``f`` and start compiling it."""
-    lib.parent.mkdir(parents=True, exist_ok=True)
-    tmp = tempfile.mkdtemp(dir=lib.parent)
+    """Generate the C source of ``f`` and start compiling it (in its own directory)."""
+    tmp = tempfile.mkdtemp(prefix=f"build-{lib.stem}-", dir=lib.parent)
     src = f"{f.name()}.c"
     cg = ca.CodeGenerator(src, {"with_header": False})
     cg.add(f)
@@ -111,22 +147,19 @@ def _start(f: ca.Function, cc: str, lib: Path) -> tuple[subprocess.Popen, str, P
     return proc, tmp, out
 
 
-def _finish(f: ca.Function, lib: Path, proc: subprocess.Popen, tmp: str, out: Path) -> bool:
-    """Wait for a build; move the library into the cache (atomically). Success?"""
+def _finish(f: ca.Function, entry: CacheEntry, proc: subprocess.Popen, out: Path) -> bool:
+    """Wait for a build and install the library into the cache. Success?"""
     try:
-        log_text, _ = proc.communicate(timeout=1200)
-        if proc.returncode != 0:
-            msg = log_text.decode(errors="replace").strip().splitlines()[-1:] or ["?"]
-            _warn_once(f"codegen: compiling {f.name()} failed ({msg[0]}); evaluating in-process")
-            return False
-        os.replace(out, lib)  # concurrent builders never see a partial file
-        return True
+        log_text, _ = proc.communicate(timeout=BUILD_TIMEOUT_S)
     except subprocess.TimeoutExpired:
-        proc.kill()
         _warn_once(f"codegen: compiling {f.name()} timed out; evaluating in-process")
         return False
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    if proc.returncode != 0:
+        msg = log_text.decode(errors="replace").strip().splitlines()[-1:] or ["?"]
+        _warn_once(f"codegen: compiling {f.name()} failed ({msg[0]}); evaluating in-process")
+        return False
+    entry.install(out)
+    return True
 
 
 _BLAS_SETTERS = (

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import re
+import signal
+import threading
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -10,6 +13,7 @@ import casadi as ca
 import numpy as np
 
 from aeromanip.errors import ConfigError
+from aeromanip.interrupts import deferred, raise_if_interrupted
 from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult
 from aeromanip.nmpc.transcription import Transcription
 
@@ -46,6 +50,25 @@ class NlpBackend(Backend):
         """The plugin's options before the user's."""
         return dict(IPOPT_OPTIONS)
 
+    @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """Options the plugin knows, of the right types: tried on a one-variable NLP
+        (cheap: nothing is compiled), errors in one line naming the solver."""
+        super().check_options(options)
+        bad = [k for k in options if not isinstance(k, str)]
+        if bad:
+            raise ConfigError(f"solver_options: keys must be strings, got {bad[0]!r}")
+        x0, u0, x1 = (ca.SX.sym(n) for n in ("x0", "u0", "x1"))  # a one-step OCP
+        nlp = {"x": ca.vertcat(x0, u0, x1), "f": u0 * u0 + x1 * x1, "g": x1 - x0 - u0}
+        defaults = IPOPT_OPTIONS if cls.solver_name == "ipopt" else FATROP_OPTIONS
+        solver = _nlpsol(cls.solver_name, nlp, {**defaults, "equality": [True], **dict(options)})
+        try:  # some plugins (fatrop) read their options only when they first solve
+            solver(x0=[1.0, 0.0, 0.0], lbx=[1.0, -ca.inf, -ca.inf], ubx=[1.0, ca.inf, ca.inf])
+        except RuntimeError as e:
+            raise ConfigError(
+                f"solver_options: {cls.solver_name} rejects the options: {one_line(e)}"
+            ) from None
+
     def __init__(
         self, transcription: Transcription, options: Mapping[str, Any] | None = None
     ) -> None:
@@ -57,11 +80,9 @@ class NlpBackend(Backend):
             "f": transcription.f,
             "g": transcription.g,
         }
+        self.check_options(options or {})
         opts = {**self.default_options(), **dict(options or {})}
-        try:
-            self.solver = ca.nlpsol(f"nmpc_{name}", name, nlp, opts)
-        except RuntimeError as e:
-            raise ConfigError(f"solver.backend: {name} could not be set up: {e}") from None
+        self.solver = _nlpsol(name, nlp, opts)
         # fatrop does not stop on NaN at its initial point (it spins): look first
         self._check_start = (
             ca.Function("f_g", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])
@@ -97,10 +118,13 @@ class NlpBackend(Backend):
             error = "Invalid_Number_Detected: cost or constraints not finite at the initial guess"
         else:
             try:
-                out = self.solver(**args)
+                with deferred():  # a signal ends the run after this solve, not the solve
+                    out = self.solver(**args)
             except RuntimeError as e:  # evaluation errors (NaN) end in an exception
                 error = str(e).splitlines()[-1] if str(e) else "solver error"
             stats = self.solver.stats()
+            if stats.get("return_status") == INTERRUPTED_STATUS:
+                _reraise_interrupt()
         elapsed = time.perf_counter() - t0
         if out is None:
             n = self.tr.w.numel()
@@ -153,3 +177,38 @@ class FatropBackend(NlpBackend):
     def default_options(self) -> dict[str, Any]:
         """fatrop's options, with the equality rows it needs to detect the structure."""
         return {**FATROP_OPTIONS, "equality": self.tr.equality}
+
+
+INTERRUPTED_STATUS = "NonIpopt_Exception_Thrown"  # what IPOPT reports when CasADi caught a signal
+
+
+def _reraise_interrupt() -> None:
+    """A solve that ended because CasADi caught a signal: raise it again, never treat it
+    as a solver failure to fall back from (``aeromanip.interrupts``)."""
+    raise_if_interrupted()
+    if (
+        threading.current_thread() is threading.main_thread()
+        and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    ):
+        raise KeyboardInterrupt  # Python's own Ctrl-C, swallowed by CasADi
+
+
+def _nlpsol(name: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function:
+    """``casadi.nlpsol``; a bad option is one ``ConfigError`` line naming the solver."""
+    try:
+        return ca.nlpsol(f"nmpc_{name}", name, nlp, opts)
+    except RuntimeError as e:
+        raise ConfigError(f"solver_options: {name} rejects the options: {one_line(e)}") from None
+
+
+def one_line(e: Exception) -> str:
+    """CasADi's multi-line error as one line: its messages, without source locations,
+    suggestions or option listings."""
+    parts = []
+    for line in str(e).splitlines():
+        line = re.sub(r"^\.\.\./\S+?:\d+: ", "", line.strip())
+        if not line or line.startswith(("Did you mean", ">")):
+            break
+        if not line.startswith(("Error calling", "Error in Function::call")):
+            parts.append(line.rstrip(":"))
+    return "; ".join(parts) or str(e).strip()[:200]

@@ -39,8 +39,9 @@ The model Functions are compiled to C once and cached (``nmpc.backends.codegen``
 
 from __future__ import annotations
 
+import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar
 
 import casadi as ca
@@ -50,6 +51,7 @@ from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult
 from aeromanip.nmpc.backends.codegen import Buffered, compiled_all, limit_blas_threads
 from aeromanip.nmpc.backends.kkt import complementarity, convexified, l1, violation
+from aeromanip.nmpc.backends.qp import SOLVERS as QP_SOLVERS
 from aeromanip.nmpc.backends.qp import DenseQp
 from aeromanip.nmpc.transcription import Transcription, shift_map
 
@@ -74,6 +76,45 @@ DEFAULTS: dict[str, Any] = {
     "blas_threads": 1,  # OpenBLAS threads in this process (None: leave as is)
 }
 HESSIANS = ("auto", "exact", "gauss-newton")
+
+
+def _int_at_least(low: int) -> Callable[[Any], str]:
+    def check(v: Any) -> str:
+        ok = isinstance(v, int) and not isinstance(v, bool) and v >= low
+        return "" if ok else f"an integer >= {low}"
+
+    return check
+
+
+def _number(positive: bool) -> Callable[[Any], str]:
+    def check(v: Any) -> str:
+        ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+        ok = ok and (v > 0 if positive else v >= 0)
+        return "" if ok else ("a finite number > 0" if positive else "a finite number >= 0")
+
+    return check
+
+
+def _one_of(choices: Sequence[Any]) -> Callable[[Any], str]:
+    return lambda v: "" if v in choices else f"one of {list(choices)}"
+
+
+#: per option: what it must be ("" when the value is fine)
+OPTION_CHECKS: dict[str, Callable[[Any], str]] = {
+    "max_iter": _int_at_least(1),
+    "tol": _number(positive=False),  # 0: only the acceptable level ends a solve
+    "acceptable_tol": _number(positive=True),
+    "constr_viol_tol": _number(positive=True),
+    "acceptable_iter": _int_at_least(1),
+    "rti": _one_of((True, False)),
+    "codegen": _one_of((True, False)),
+    "hessian": _one_of(HESSIANS),
+    "regularization": _number(positive=False),
+    "qpsol": _one_of(tuple(QP_SOLVERS)),
+    "qpsol_options": lambda v: "" if isinstance(v, Mapping) else "a table",
+    "screen": _number(positive=False),
+    "blas_threads": lambda v: "" if v is None or _int_at_least(1)(v) == "" else "an integer >= 1",
+}
 EXACT_FROM_ITERATION = 6  # "auto": the exact Hessian from this (0-based) iteration on
 ARMIJO = 1e-4  # sufficient decrease of the l1 merit, per unit of its directional derivative
 BACKTRACK = 0.5  # step-length factor per rejected trial
@@ -110,7 +151,10 @@ class SqpBackend(Backend):
     @classmethod
     def checked_options(cls, options: Mapping[str, Any] | None) -> dict[str, Any]:
         """The defaults updated with ``options``; an unknown key or a bad value is a
-        ``ConfigError`` naming it (checked before anything is built)."""
+        ``ConfigError`` naming the key, the value and what is allowed (checked before
+        anything is built)."""
+        if options is not None and not isinstance(options, Mapping):
+            raise ConfigError(f"solver_options: must be a table, got {options!r}")
         unknown = set(options or {}) - set(DEFAULTS)
         if unknown:
             raise ConfigError(
@@ -118,11 +162,16 @@ class SqpBackend(Backend):
                 f"(known: {', '.join(DEFAULTS)})"
             )
         opts = {**cls.defaults, **dict(options or {})}
-        if opts["hessian"] not in HESSIANS:
-            raise ConfigError(
-                f"solver_options.hessian: {opts['hessian']!r} is not one of {list(HESSIANS)}"
-            )
+        for key, check in OPTION_CHECKS.items():
+            allowed = check(opts[key])
+            if allowed:
+                raise ConfigError(f"solver_options.{key}: {opts[key]!r} is not {allowed}")
         return opts
+
+    @classmethod
+    def check_options(cls, options: Mapping[str, Any]) -> None:
+        """See ``checked_options``."""
+        cls.checked_options(options)
 
     def _condensed(self, U: ca.SX, p: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX]:
         """The NLP in the commands ``U`` alone: objective residuals ``R``, the rows that

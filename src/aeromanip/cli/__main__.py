@@ -1,0 +1,7 @@
+"""``python -m aeromanip.cli``: the ``aeromanip`` command."""
+
+import sys
+
+from aeromanip.cli import main
+
+sys.exit(main())

@@ -1,0 +1,177 @@
+"""The closed loop of a scenario: controller and simulator, step by step, one log row each.
+
+``fly`` hands every row to a sink as it is made (the runner streams them to disk, so a run
+keeps what it flew and its memory stays flat); ``simulate`` collects them into a
+``RunLog`` for use from Python. Between steps the loop checks for a stop signal that C
+code may have swallowed (``aeromanip.interrupts``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from aeromanip.experiment.progress import Progress
+from aeromanip.experiment.runlog import RunLog, contract_columns
+from aeromanip.experiment.scenario import Scenario
+from aeromanip.interrupts import raise_if_interrupted
+from aeromanip.nmpc.controller import Command, Controller
+from aeromanip.references import Waypoints
+from aeromanip.robot.spec import PLATFORM_DOFS
+from aeromanip.sim.base import SIMULATORS, Simulator
+
+Row = dict[str, Any]
+
+
+def make_simulator(sc: Scenario) -> Simulator:
+    """The scenario's simulator (``sim``: a registered name or ``package.module:Class``)."""
+    cls = SIMULATORS.get(sc.sim, "sim")
+    options = sc.physics if cls.options_table == "physics" else {}
+    return cls.from_options(sc.robot, options)
+
+
+def make_controller(sc: Scenario) -> Controller:
+    """The scenario's controller."""
+    return Controller(
+        sc.problem,
+        sc.strategy,
+        sc.backend,
+        sc.solver_options,
+        hierarchy=sc.hierarchy or None,
+        time_budget_s=sc.time_budget_s,
+    )
+
+
+def log_columns(sc: Scenario, sim: Simulator) -> list[str]:
+    """Every column a run of ``sc`` on ``sim`` logs, in order (the contract's first)."""
+    cols = [*contract_columns(sc.robot.n_joints), "iterations", "message"]
+    cols += [f"cost_{e.name}" for e in sc.problem.entries]
+    if sc.strategy == "hierarchical":  # per level: optimal cost, what optimising it gained
+        for lvl in sc.problem.levels:
+            cols += [f"level{lvl}_cost", f"level{lvl}_gain"]
+    return cols + [k for k in sim.extras() if k not in cols]
+
+
+def run_meta(sc: Scenario) -> dict[str, Any]:
+    """``meta.json``: what the plots and metrics need to read the log alone."""
+    meta: dict[str, Any] = {
+        "scenario": sc.name,
+        "state_names": list(sc.robot.state_names),
+        # the true limits (the NMPC may plan with tightened ones)
+        "bounds": sc.limits.as_dict(),
+        "strategy": sc.strategy,
+        "backend": sc.backend,
+        "dt": sc.problem.dt,
+        "horizon": sc.problem.horizon,
+        "sim": sc.sim,
+    }
+    if sc.clearance is not None:
+        meta["clearance_min"] = sc.clearance.d_min
+    if isinstance(sc.reference, Waypoints):
+        meta["waypoints"] = np.asarray(sc.reference.points).tolist()
+    return meta
+
+
+def _log_function(sc: Scenario) -> ca.Function:
+    """EE position, arm CoG (body xy), D, rho and the smallest clearance of a state."""
+    kin = sc.problem.kin
+    x = kin.symbols()[0]
+    tracked = sc.tracked if len(sc.tracked) <= kin.n_joints else sc.tracked[: kin.n_joints]
+    clearance = sc.clearance.points if sc.clearance is not None else None
+    outs = [
+        kin.ee_position(x),
+        kin.cog_body(x)[:2],
+        kin.manipulability(tracked)(x),
+        kin.condition_number(tracked)(x),
+        ca.mmin(kin.clearance(clearance)(x)),
+    ]
+    return ca.Function("log", [x], outs)
+
+
+class RowMaker:
+    """Builds a log row from the true state, the command and the simulator's extras."""
+
+    def __init__(self, sc: Scenario) -> None:
+        self.sc = sc
+        self.log_f = _log_function(sc)
+        spec = sc.robot
+        names = spec.state_names
+        fixed = {d: float(spec.platform.fixed.get(d, 0.0)) for d in PLATFORM_DOFS}
+        #: per platform DoF: its index in the state, or its fixed value
+        self.platform = [
+            (d, names.index(d) if d in names else None, fixed[d]) for d in PLATFORM_DOFS
+        ]
+        self.joints = [(i + 1, spec.n_platform + i) for i in range(spec.n_joints)]
+
+    def row(self, t: float, x: np.ndarray, ee: np.ndarray | None, cmd: Command) -> Row:
+        """The row of time ``t`` [s]: state ``x``, the physical EE (if the simulator has
+        one) and the command decided at ``t``."""
+        e, cog, manip, cond, clear = (np.asarray(v).ravel() for v in self.log_f(x))
+        ee = e if ee is None else np.asarray(ee, dtype=float)
+        ref = self.sc.reference.position(t)
+        row: Row = {"t": t}
+        row.update({d: (x[i] if i is not None else v) for d, i, v in self.platform})
+        row.update({f"q{j}": x[i] for j, i in self.joints})
+        row.update({f"u_{d}": (cmd.u[i] if i is not None else 0.0) for d, i, _ in self.platform})
+        row.update({f"u_q{j}": cmd.u[i] for j, i in self.joints})
+        row.update(ee_x=ee[0], ee_y=ee[1], ee_z=ee[2], ref_x=ref[0], ref_y=ref[1], ref_z=ref[2])
+        row.update(cog_bx=cog[0], cog_by=cog[1], manip=manip[0], cond=cond[0], clearance=clear[0])
+        row.update(
+            solve_ms=1e3 * cmd.solve_time_s,
+            status=cmd.status,
+            iterations=cmd.iterations,
+            message=cmd.message,
+        )
+        row.update({f"cost_{n}": c for n, c in cmd.task_costs.items()})
+        if self.sc.strategy == "hierarchical":
+            for lv in cmd.levels:
+                row[f"level{lv.level}_cost"] = lv.cost
+                row[f"level{lv.level}_gain"] = lv.gain
+        return row
+
+
+def fly(
+    sc: Scenario,
+    sink: Callable[[Row], None],
+    *,
+    progress: bool = True,
+    ctrl: Controller | None = None,
+    sim: Simulator | None = None,
+) -> int:
+    """Fly the closed loop of ``sc``, handing each row to ``sink``; return the steps flown.
+
+    A signal stops the loop between steps with ``RunInterrupted`` (rows already handed
+    over are the run's record). ``ctrl`` and ``sim`` default to the scenario's.
+    """
+    ctrl = ctrl or make_controller(sc)
+    sim = sim or make_simulator(sc)
+    dt, maker = sc.problem.dt, RowMaker(sc)
+    sim.reset(sc.x0)
+    bar = Progress(sc.steps, sc.name) if progress else None
+    try:
+        for k in range(sc.steps):
+            raise_if_interrupted()
+            t = k * dt
+            cmd = ctrl.step(sim.state(), t)
+            row = maker.row(t, sim.true_state(), sim.ee_position(), cmd)
+            now = {n: v for n, v in sim.extras().items() if n in sim.instant_extras}
+            sim.advance(cmd.u, cmd.plan_x, dt)
+            row.update(sim.extras())  # means over the period this row's command flew
+            row.update(now)  # values at this row's time, as the state
+            sink(row)
+            if bar is not None:
+                bar.update(k + 1)
+    finally:
+        if bar is not None:
+            bar.close()
+    return sc.steps
+
+
+def simulate(sc: Scenario, progress: bool = False) -> RunLog:
+    """Run the closed loop of ``sc`` in memory and return its log."""
+    rows: list[Row] = []
+    fly(sc, rows.append, progress=progress)
+    return RunLog.from_rows(rows, meta=run_meta(sc))

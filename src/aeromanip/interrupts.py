@@ -1,0 +1,83 @@
+"""Stopping a run on SIGINT (Ctrl-C) or SIGTERM, wherever the signal lands.
+
+Python raises ``KeyboardInterrupt`` where the main thread runs Python code, but a signal
+that lands inside a CasADi solve is caught by CasADi, which ends the solve as a failure
+(IPOPT: ``KeyboardInterruptException``) and carries on: a controller would fall back and
+the run would go on. ``stop_on_signals()`` installs handlers that remember the signal and
+raise ``RunInterrupted`` (a ``KeyboardInterrupt``), except inside ``deferred()`` blocks
+(solver calls, moving a run directory into place), where the signal is only remembered
+and raised when the block ends: the solve finishes (IPOPT: a few milliseconds) and the
+stop is never mistaken for a solver failure.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from collections.abc import Iterator
+from types import FrameType
+
+EXIT_CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + the signal's number
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """A run stopped by a signal; ``signum`` is the signal, ``exit_code`` 128 + it."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        self.exit_code = EXIT_CODES.get(signal.Signals(signum), 128 + int(signum))
+        super().__init__(signal.Signals(signum).name)
+
+
+_pending: list[int] = []  # the signals received and not yet raised
+_deferring: list[bool] = []  # non-empty inside ``deferred()`` blocks
+
+
+def _handler(signum: int, frame: FrameType | None) -> None:
+    _pending.append(signum)
+    if not _deferring:
+        raise RunInterrupted(signum)
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[None]:
+    """A block a signal does not break: it is raised when the block ends."""
+    _deferring.append(True)
+    try:
+        yield
+    finally:
+        _deferring.pop()
+    raise_if_interrupted()
+
+
+def interrupted() -> int | None:
+    """The signal received, if any (until ``clear()``)."""
+    return _pending[0] if _pending else None
+
+
+def raise_if_interrupted() -> None:
+    """Raise ``RunInterrupted`` if a signal arrived (e.g. while C code held the thread)."""
+    if _pending:
+        raise RunInterrupted(_pending[0])
+
+
+def clear() -> None:
+    """Forget received signals (a new run starts)."""
+    _pending.clear()
+
+
+@contextlib.contextmanager
+def stop_on_signals() -> Iterator[None]:
+    """Within the block, SIGINT and SIGTERM raise ``RunInterrupted`` (main thread only;
+    elsewhere the block changes nothing). The previous handlers are restored after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    clear()
+    previous = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
