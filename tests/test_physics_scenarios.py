@@ -32,11 +32,13 @@ def test_physics_log_has_tilt_motors_and_arm_torque(flights):
     assert model.nu == 8 + 3  # the X8's rotors (4 coaxial pairs) + arm servos
 
 
-def test_cog_alignment_lowers_tilt_and_arm_torque_at_equal_tracking(flights):
+def test_cog_alignment_lowers_the_arm_torque_at_equal_tracking(flights):
+    """Sec. IV-B: the aligned CoG takes the arm's moment off the base. (The tilt is not
+    lower: with the arm kept under it, the platform itself moves more, and accelerating
+    tilts it; the README reports both.)"""
     hier = read_summary(flights["hierarchical"] / "summary.json")
     only = read_summary(flights["tracking-only"] / "summary.json")
     assert hier["arm_torque_mean_nm"] < 0.2 * only["arm_torque_mean_nm"]
-    assert hier["roll_pitch_mean_deg"] < only["roll_pitch_mean_deg"]
     # equal tracking: within 1 mm RMS of each other (both physical, tilt included)
     assert abs(hier["ee_rmse_m"] - only["ee_rmse_m"]) < 1e-3
     # the rotors do less differential work to hold the arm's moment

@@ -12,8 +12,9 @@ of their applied commands from it.
 * ``baseline``: the formulation most users write first: CasADi ``nlpsol`` + IPOPT with
   default options, solved from scratch (no warm start) at every step.
 * ``weighted``: the weighted strategy; ``hierarchical``: 2 levels (tracking, then CoG),
-  stage-wise cost bounds (the paper's form); ``residual``: the same hierarchy with
-  ``mode = "residual"`` (residual boxes: a stricter problem, see ``strategies``);
+  strict (the tracking residuals pinned at their optimum, see ``strategies``);
+  ``stagewise``: the same hierarchy in the paper's literal, relaxed form (stage costs
+  bounded by the optimum plus a tolerance);
   ``constrained``: weighted, with a reference 25x faster so that velocity bounds bind;
   ``rti``: weighted, one SQP iteration per step. Each with the ``sqp`` backend and, as
   the reference answer, with IPOPT warm-started and converged tightly (``-ipopt``,
@@ -42,7 +43,7 @@ from aeromanip.nmpc.transcription import Transcription
 FAST = 25.0  # reference speed-up of the constrained variant: velocity bounds bind
 
 
-# name: (scenario kind, strategy ("residual": hierarchical, mode "residual"), backend,
+# name: (scenario kind, strategy ("stagewise": hierarchical, mode "stagewise"), backend,
 #        solver options, the variant it should equal)
 VARIANTS: dict[str, tuple[str, str, str, dict | None, str | None]] = {
     "baseline": ("flight", "weighted", "plain-ipopt", None, None),
@@ -51,8 +52,8 @@ VARIANTS: dict[str, tuple[str, str, str, dict | None, str | None]] = {
     "rti": ("flight", "weighted", "sqp-rti", None, "weighted"),
     "hierarchical-ipopt": ("flight", "hierarchical", "ipopt", REF_OPTIONS, None),
     "hierarchical": ("flight", "hierarchical", "sqp", None, "hierarchical-ipopt"),
-    "residual-ipopt": ("flight", "residual", "ipopt", REF_OPTIONS, None),
-    "residual": ("flight", "residual", "sqp", None, "residual-ipopt"),
+    "stagewise-ipopt": ("flight", "stagewise", "ipopt", REF_OPTIONS, None),
+    "stagewise": ("flight", "stagewise", "sqp", None, "stagewise-ipopt"),
     "constrained-ipopt": ("fast", "weighted", "ipopt", REF_OPTIONS, None),
     "constrained": ("fast", "weighted", "sqp", None, "constrained-ipopt"),
 }
@@ -109,8 +110,8 @@ def _stepper(
         return ctrl, ctrl.step
 
     hierarchy = None
-    if strategy in ("hierarchical", "residual"):
-        hierarchy = dict(sc.hierarchy, mode="residual" if strategy == "residual" else "stagewise")
+    if strategy in ("hierarchical", "stagewise"):
+        hierarchy = dict(sc.hierarchy, mode="stagewise" if strategy == "stagewise" else "strict")
         strategy = "hierarchical"
     ctrl = Controller(sc.problem, strategy, backend, options, hierarchy=hierarchy)
 

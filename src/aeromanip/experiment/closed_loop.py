@@ -18,6 +18,7 @@ from aeromanip.experiment.progress import Progress
 from aeromanip.experiment.runlog import RunLog, contract_columns
 from aeromanip.experiment.scenario import Scenario
 from aeromanip.interrupts import raise_if_interrupted
+from aeromanip.nmpc.constraints import Clearance
 from aeromanip.nmpc.controller import Command, Controller
 from aeromanip.references import Waypoints
 from aeromanip.robot.spec import PLATFORM_DOFS
@@ -48,10 +49,11 @@ def make_controller(sc: Scenario) -> Controller:
 def log_columns(sc: Scenario, sim: Simulator) -> list[str]:
     """Every column a run of ``sc`` on ``sim`` logs, in order (the contract's first)."""
     cols = [*contract_columns(sc.robot.n_joints), "iterations", "message"]
+    cols += [f"clear_{p}" for p in clearance_points(sc)]
     cols += [f"cost_{e.name}" for e in sc.problem.entries]
-    if sc.strategy == "hierarchical":  # per level: optimal cost, what optimising it gained
+    if sc.strategy == "hierarchical":  # per level: optimum, what it gained, what it lost
         for lvl in sc.problem.levels:
-            cols += [f"level{lvl}_cost", f"level{lvl}_gain"]
+            cols += [f"level{lvl}_{k}" for k in ("cost", "objective", "gain", "loss")]
     return cols + [k for k in sim.extras() if k not in cols]
 
 
@@ -70,23 +72,34 @@ def run_meta(sc: Scenario) -> dict[str, Any]:
     }
     if sc.clearance is not None:
         meta["clearance_min"] = sc.clearance.d_min
+        meta["clearance_planned"] = min(
+            c.d_min for c in sc.problem.constraints if isinstance(c, Clearance)
+        )
     if isinstance(sc.reference, Waypoints):
         meta["waypoints"] = np.asarray(sc.reference.points).tolist()
     return meta
 
 
+def clearance_points(sc: Scenario) -> list[str]:
+    """The arm points whose depth below the base is logged (``clear_<point>``)."""
+    kin = sc.problem.kin
+    if sc.clearance is not None and sc.clearance.points is not None:
+        return list(sc.clearance.points)
+    return kin.default_clearance_points()
+
+
 def _log_function(sc: Scenario) -> ca.Function:
-    """EE position, arm CoG (body xy), D, rho and the smallest clearance of a state."""
+    """EE position, arm CoG (body xy), D, the exact rho (no regularisation: that is for
+    the cost only) and each clearance point's depth below the base, of a state."""
     kin = sc.problem.kin
     x = kin.symbols()[0]
     tracked = sc.tracked if len(sc.tracked) <= kin.n_joints else sc.tracked[: kin.n_joints]
-    clearance = sc.clearance.points if sc.clearance is not None else None
     outs = [
         kin.ee_position(x),
         kin.cog_body(x)[:2],
         kin.manipulability(tracked)(x),
-        kin.condition_number(tracked)(x),
-        ca.mmin(kin.clearance(clearance)(x)),
+        kin.condition_number(tracked, delta=0.0)(x),
+        kin.clearance(clearance_points(sc))(x),
     ]
     return ca.Function("log", [x], outs)
 
@@ -105,6 +118,7 @@ class RowMaker:
             (d, names.index(d) if d in names else None, fixed[d]) for d in PLATFORM_DOFS
         ]
         self.joints = [(i + 1, spec.n_platform + i) for i in range(spec.n_joints)]
+        self.points = [f"clear_{p}" for p in clearance_points(sc)]
 
     def row(self, t: float, x: np.ndarray, ee: np.ndarray | None, cmd: Command) -> Row:
         """The row of time ``t`` [s]: state ``x``, the physical EE (if the simulator has
@@ -118,7 +132,8 @@ class RowMaker:
         row.update({f"u_{d}": (cmd.u[i] if i is not None else 0.0) for d, i, _ in self.platform})
         row.update({f"u_q{j}": cmd.u[i] for j, i in self.joints})
         row.update(ee_x=ee[0], ee_y=ee[1], ee_z=ee[2], ref_x=ref[0], ref_y=ref[1], ref_z=ref[2])
-        row.update(cog_bx=cog[0], cog_by=cog[1], manip=manip[0], cond=cond[0], clearance=clear[0])
+        row.update(cog_bx=cog[0], cog_by=cog[1], manip=manip[0], cond=cond[0])
+        row.update(zip(self.points, clear, strict=True), clearance=float(np.min(clear)))
         row.update(
             solve_ms=1e3 * cmd.solve_time_s,
             status=cmd.status,
@@ -128,8 +143,8 @@ class RowMaker:
         row.update({f"cost_{n}": c for n, c in cmd.task_costs.items()})
         if self.sc.strategy == "hierarchical":
             for lv in cmd.levels:
-                row[f"level{lv.level}_cost"] = lv.cost
-                row[f"level{lv.level}_gain"] = lv.gain
+                for key in ("cost", "objective", "gain", "loss"):
+                    row[f"level{lv.level}_{key}"] = getattr(lv, key)
         return row
 
 

@@ -6,7 +6,8 @@ optional): ``bounds``, ``state_names``, ``waypoints``, ``scenario`` (see ``runlo
 Layout helpers (margins, one legend per figure under its title) live in ``plot_style``.
 
 Single run: ``plot_tracking`` (Figs. 2, 7), ``plot_commands`` (Fig. 3), ``plot_joints``
-(Fig. 8), ``plot_platform`` (Fig. 9), ``plot_cog``, ``plot_attitude`` (physics runs),
+(Fig. 8), ``plot_platform`` (Fig. 9), ``plot_cog``, ``plot_clearance`` (eq. 17 against
+``d_min``), ``plot_attitude`` (physics runs),
 ``plot_solve_time``; ``plot_run`` draws all that apply. Several variants: ``plot_condition``
 (Fig. 4), ``plot_paths_3d`` (Figs. 5-6), ``plot_errors``; ``plot_comparison`` draws those.
 """
@@ -14,6 +15,7 @@ Single run: ``plot_tracking`` (Figs. 2, 7), ``plot_commands`` (Fig. 3), ``plot_j
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -22,6 +24,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from aeromanip.errors import ConfigError
 from aeromanip.experiment.plot_style import (
     active,
     bound_lines,
@@ -40,7 +43,7 @@ START_STYLE: dict[str, Any] = {"marker": "o", "ms": 7, "mfc": "limegreen", "mec"
 
 
 def _title(log: RunLog, what: str) -> str:
-    scen = log.meta.get("scenario")
+    scen = str(log.meta.get("scenario") or "").replace("$", r"\$")  # no mathtext
     return f"{scen}: {what}" if scen else what
 
 
@@ -230,17 +233,38 @@ def plot_solve_time(log: RunLog, out_dir: str | Path, name: str = "solve_time.pn
     return [save(fig, out_dir, name)]
 
 
+def plot_clearance(log: RunLog, out_dir: str | Path, name: str = "clearance.png") -> list[Path]:
+    """Each constrained arm point's depth below the base [m] against ``d_min`` (dashed;
+    the counterpart of Fig. 8's bounds for the self-collision constraint, eq. 17)."""
+    points = [n for n in log.names if n.startswith("clear_")]
+    if not points:
+        return []
+    t = log.column("t")
+    fig, axes = grid(1, row_h=3.0)
+    ax = axes[0]
+    for i, col in enumerate(points):
+        ax.plot(t, log.column(col), color=f"C{i}", lw=1.2, label=col[6:])
+    d_min = log.meta.get("clearance_min")
+    if d_min is not None:
+        ax.axhline(float(d_min), color="r", ls="--", lw=1.0, label=f"d_min ({float(d_min):g} m)")
+    planned = log.meta.get("clearance_planned")
+    if planned is not None and d_min is not None and float(planned) > float(d_min):
+        ax.axhline(float(planned), color="r", ls=":", lw=1.0, label="planned limit")
+    finish(ax, "depth below the base [m]")
+    title_and_legend(fig, axes, _title(log, "self-collision clearance of the arm points"))
+    return [save(fig, out_dir, name)]
+
+
 def plot_run(log: RunLog, out_dir: str | Path) -> list[Path]:
     """Every single-run figure whose columns exist, into ``out_dir``."""
-    paths: list[Path] = []
+    draws: list[Any] = []
     if all(f"{p}_{c}" in log for p in ("ee", "ref") for c in "xyz"):
-        paths += plot_tracking(log, out_dir)
-    paths += plot_commands(log, out_dir)
-    paths += plot_joints(log, out_dir)
-    paths += plot_platform(log, out_dir)
-    paths += plot_cog(log, out_dir)
-    paths += plot_attitude(log, out_dir)
-    paths += plot_solve_time(log, out_dir)
+        draws.append(plot_tracking)
+    draws += [plot_commands, plot_joints, plot_platform, plot_cog, plot_clearance]
+    draws += [plot_attitude, plot_solve_time]
+    paths: list[Path] = []
+    for draw in draws:
+        paths += _drawn(draw, log, out_dir)
     return paths
 
 
@@ -359,4 +383,19 @@ def plot_errors(
 
 def plot_comparison(logs: Mapping[str, RunLog], out_dir: str | Path) -> list[Path]:
     """Condition-number comparison, 3D paths and error/CoG comparison of several variants."""
-    return plot_condition(logs, out_dir) + plot_paths_3d(logs, out_dir) + plot_errors(logs, out_dir)
+    paths: list[Path] = []
+    for draw in (plot_condition, plot_paths_3d, plot_errors):
+        paths += _drawn(draw, logs, out_dir)
+    return paths
+
+
+def _drawn(draw: Any, data: Any, out_dir: str | Path) -> list[Path]:
+    """``draw(data, out_dir)``; data it cannot draw (values beyond what Matplotlib can
+    scale, a ``figures`` path that is a file) is one ``ConfigError`` naming the figure."""
+    try:
+        with warnings.catch_warnings():  # an overflow is an error here, not stderr noise
+            warnings.simplefilter("error", RuntimeWarning)
+            return draw(data, out_dir)
+    except (ValueError, OverflowError, FloatingPointError, RuntimeError, OSError, Warning) as e:
+        first = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        raise ConfigError(f"{out_dir}: cannot draw {draw.__name__[5:]}: {first}") from None

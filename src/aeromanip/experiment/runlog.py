@@ -27,6 +27,7 @@ LOG_FILE = "log.csv"
 META_FILE = "meta.json"
 SUMMARY_FILE = "summary.json"
 TEXT_COLUMNS: frozenset[str] = frozenset({"status", "message"})
+CLEARANCE_ACTIVE = 1e-3  # [m] a point this close to its planned depth binds the constraint
 """Columns always stored as text."""
 
 _JOINT = re.compile(r"q([1-9][0-9]*)")
@@ -185,7 +186,7 @@ class RunLog:
                 raise ConfigError(f"{f}: line {i + 2}: {len(r)} fields, header has {len(header)}")
         if require_rows and not body:
             raise ConfigError(f"{f}: the run log has no rows (the run flew no step)")
-        cols = {name: _parse_column(name, [r[j] for r in body]) for j, name in enumerate(header)}
+        cols = {name: _parse_column(name, [r[j] for r in body], f) for j, name in enumerate(header)}
         return cls(cols, _load_meta(d / META_FILE))
 
     # ---------------------------------------------------------------- metrics
@@ -226,11 +227,48 @@ class RunLog:
             s["arm_torque_mean_nm"] = _nan_or(
                 self.columns["arm_torque"], lambda a: float(np.nanmean(a))
             )
+        s.update(self._level_losses())
+        s.update(self._clearance_use())
         if "iterations" in self.columns:
             s["iterations_mean"] = _nan_or(
                 self.columns["iterations"], lambda a: float(np.nanmean(a))
             )
         return s
+
+    def _level_losses(self) -> dict[str, Any]:
+        """Per hierarchy level: how much of its optimal cost the lower levels took, per
+        step (``loss``; relative to the optimum: ``loss_rel``), mean and max."""
+        out: dict[str, Any] = {}
+        for name in self.columns:
+            m = re.fullmatch(r"level(\d+)_loss", name)
+            if not m:
+                continue
+            loss = self.columns[name]
+            cost = self.columns.get(f"level{m[1]}_cost", np.full(loss.shape, np.nan))
+            rel = loss / np.maximum(np.abs(cost), 1e-12)
+            out[m[1]] = {
+                "loss_mean": _nan_or(loss, lambda a: float(np.nanmean(a))),
+                "loss_max": _nan_or(loss, lambda a: float(np.nanmax(a))),
+                "loss_rel_mean": _nan_or(rel, lambda a: float(np.nanmean(a))),
+                "cost_mean": _nan_or(cost, lambda a: float(np.nanmean(a))),
+            }
+        return {"levels": out} if out else {}
+
+    def _clearance_use(self) -> dict[str, Any]:
+        """Each point's smallest depth below the base [m] and the share of steps at which
+        the self-collision constraint binds (within ``CLEARANCE_ACTIVE`` of the planned
+        depth ``meta["clearance_planned"]``)."""
+        points = {n[6:]: c for n, c in self.columns.items() if n.startswith("clear_")}
+        out: dict[str, Any] = {}
+        if points:
+            out["min_clearance_by_point_m"] = {
+                p: _nan_or(c, lambda a: float(np.nanmin(a))) for p, c in points.items()
+            }
+        planned = self.meta.get("clearance_planned")
+        if planned is not None and "clearance" in self.columns and len(self):
+            near = self.columns["clearance"] <= float(planned) + CLEARANCE_ACTIVE
+            out["clearance_active_share"] = float(np.mean(near))
+        return out
 
     def bound_violation(self) -> tuple[float, str | None]:
         """Largest excursion beyond ``meta["bounds"]`` [column units] and its column."""
@@ -341,7 +379,38 @@ def _load_meta(path: Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: cannot read run metadata: {e}") from None
     if not isinstance(meta, dict):
         raise ConfigError(f"{path}: run metadata must be a JSON object")
+    bounds = meta.get("bounds") or {}
+    if not isinstance(bounds, dict):
+        raise ConfigError(f"{path}: bounds: expected an object of [lower, upper] pairs")
+    for name, bound in bounds.items():  # checked here, before anything is drawn from it
+        bound_pair(bound, name)
+    _check_meta_types(meta, path)
     return meta
+
+
+def _check_meta_types(meta: dict[str, Any], path: Path) -> None:
+    """The meta keys the plots read, of the types they need."""
+    names = meta.get("state_names")
+    if names is not None and not (
+        isinstance(names, list) and all(isinstance(n, str) for n in names)
+    ):
+        raise ConfigError(f"{path}: state_names: expected an array of names, got {names!r:.60}")
+    for key in ("clearance_min", "clearance_planned", "dt"):
+        v = meta.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int | float)):
+            raise ConfigError(f"{path}: {key}: expected a number, got {v!r:.60}")
+    points = meta.get("waypoints")
+    if points is not None:
+        ok = isinstance(points, list) and all(
+            isinstance(p, list) and len(p) == 3 and all(isinstance(c, int | float) for c in p)
+            for p in points
+        )
+        if not ok:
+            raise ConfigError(
+                f"{path}: waypoints: expected an array of [x, y, z], got {points!r:.60}"
+            )
+    if "scenario" in meta and not isinstance(meta["scenario"], str):
+        raise ConfigError(f"{path}: scenario: expected a name, got {meta['scenario']!r:.60}")
 
 
 def _nan_or(values: np.ndarray | None, fn: Any) -> float:
@@ -363,13 +432,20 @@ def bound_pair(bound: Any, name: str) -> tuple[float, float]:
     raise ConfigError(f"meta.bounds.{name}: expected [lower, upper], got {bound!r}")
 
 
-def _parse_column(name: str, values: list[str]) -> np.ndarray:
+def _parse_column(name: str, values: list[str], where: Path | None = None) -> np.ndarray:
+    """A column read back: text for ``TEXT_COLUMNS``, numbers for every other one (a cell
+    that is not one is a ``ConfigError`` naming its line and column)."""
     if name in TEXT_COLUMNS:
         return np.array(values, dtype=str)
-    try:
-        return np.array([float(v) for v in values], dtype=float)
-    except ValueError:
-        return np.array(values, dtype=str)
+    out = np.empty(len(values))
+    for i, v in enumerate(values):
+        try:
+            out[i] = float(v)
+        except ValueError:
+            raise ConfigError(
+                f"{where or 'log'}: line {i + 2}, column {name!r}: not a number: {v[:40]!r}"
+            ) from None
+    return out
 
 
 def jsonable(v: Any) -> Any:

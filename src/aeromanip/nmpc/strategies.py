@@ -1,24 +1,25 @@
 """Task composition strategies (paper Sec. III-A, III-B): weighted sum or strict hierarchy.
 
-Hierarchical (nested optimisations): level ``i`` minimises its tasks subject to every
-higher level ``j < i`` keeping its optimal cost, as in the paper's eq. (5). An equality on
-an optimal value is degenerate (no interior, multipliers unbounded), so it is relaxed to
+Hierarchical (nested optimisations, the paper's eq. 5): level ``i`` minimises its tasks
+(plus the regularisers: entries with ``level=None`` such as the control rate, in every
+level's objective and never constrained) while every higher level ``j < i`` stays at
+its optimum. How it stays there is the ``mode``:
 
-    c_j <= c_j* + max(abs_tol, rel_tol * |c_j*|)
-
-stage by stage (``mode="stagewise"``, the paper's form: one constraint per predicted step
-``k = 0..N``) or on the level's total cost (``mode="total"``). Regularisers (task entries
-with ``level=None``, e.g. the control rate) are in every level's objective but never
-constrained, which keeps each level's problem well posed when higher levels leave
-redundancy.
-
-``mode="residual"`` keeps instead each higher level's weighted residual vector ``R_k``
-(cost ``c_k = ||R_k||^2``) in a box around its optimum ``R*_k``, with the half-width
-``delta_k`` that keeps ``c_k <= c*_k + tol_k`` at every corner. The rows are linear in the
-residuals, well conditioned even where ``c*_k`` is 0 (where the squared norm's gradient
-vanishes), and Newton-type solvers converge on them in a few steps. It is stricter than
-the paper's form (the residual may not rotate on the sphere ``c_k = c*_k``): a different
-problem, for when speed matters more.
+* ``"strict"`` (default): each higher level's weighted residual vector ``R_j`` is pinned
+  to its value ``R*_j`` at level ``j``'s own optimum: ``R_j(w) = R*_j``, stage by stage.
+  The rows are linear in the residuals and well conditioned (a tracking residual's
+  Jacobian always has rank 3 through the platform's translation), so every backend
+  solves them exactly; the lower level moves only in their null space. A higher level's
+  cost is then its optimum to the solver's accuracy: its *loss* (reported per level) is
+  ~0. Rows that no decision can change (stage 0 of tasks without the command) are left
+  out. The residual may not rotate on the sphere ``||R_j|| = ||R*_j||``: the higher task
+  keeps its errors, not just their size.
+* ``"stagewise"``, ``"total"``: the paper's literal form, each stage's cost (or the total)
+  bounded by ``c_j <= c*_j + max(abs_tol, rel_tol |c*_j|)``. An equality on an optimal
+  value is degenerate, so the bound is relaxed, and the lower level uses the relaxation:
+  the higher level's loss is up to the tolerance (reported).
+* ``"residual"``: the residual vector kept in a box around ``R*_j`` whose half-width
+  keeps ``c_j <= c*_j + tol`` at every corner (``strict`` with a tolerance).
 """
 
 from __future__ import annotations
@@ -35,9 +36,9 @@ from aeromanip.nmpc.backends import Backend, NlpResult, make_backend
 from aeromanip.nmpc.problem import Problem, TaskEntry
 from aeromanip.nmpc.transcription import Transcription
 
-MODE = "stagewise"  # the paper's form: one cost bound per predicted step
-REL_TOL = 1e-3  # relative relaxation of a higher level's optimal cost
-ABS_TOL = 1e-6  # absolute relaxation (where the optimum is ~0)
+MODE = "strict"  # higher levels' residuals pinned at their optimum (module docstring)
+REL_TOL = 1e-3  # relaxed modes: relative relaxation of a higher level's optimal cost
+ABS_TOL = 1e-6  # relaxed modes: absolute relaxation (where the optimum is ~0)
 MAX_REL_TOL = 1.0  # a level may double the higher optimum at most: beyond, no hierarchy
 MAX_ABS_TOL = 1e6  # [cost units]
 
@@ -48,9 +49,12 @@ class LevelReport:
 
     Attributes:
         level: priority (0 highest).
-        cost: the level's cost at its own optimum (regularisers excluded).
+        cost: the level's own tasks' cost at its own optimum (regularisers excluded).
+        objective: what the level minimised at its optimum (``cost`` + regularisers).
         gain: how much this level's cost dropped against the previous level's solution
             (what optimising it bought); 0 for the first level.
+        loss: how much higher this level's cost is at the applied solution than at its
+            own optimum (what the lower levels took from it; ~0 for ``strict``).
         success, status, iterations, solve_time_s: solver outcome.
     """
 
@@ -61,6 +65,8 @@ class LevelReport:
     status: str
     iterations: int
     solve_time_s: float
+    objective: float = float("nan")
+    loss: float = float("nan")
 
 
 @dataclass
@@ -88,8 +94,24 @@ class LevelSolver:
     g_fun: ca.Function | None = None  # the constraints, for residual bounds
 
 
-def _level_cost(tr: Transcription, w: np.ndarray, p: np.ndarray, rows: list[int]) -> np.ndarray:
-    return tr.costs(w, p)[rows].sum(axis=0)
+def _solve_level(
+    st: LevelSolver, p: np.ndarray, w0: np.ndarray, ubg: np.ndarray, lbg: np.ndarray | None = None
+) -> NlpResult:
+    """Solve with the last step's multipliers; on failure retry cold (or go on from the
+    last iterate when the solver only ran out of iterations)."""
+    lam_g = lam_x = None
+    lbg = st.tr.lbg if lbg is None else lbg
+    if st.warm is not None and st.warm.success:
+        lam_g, lam_x = st.warm.lam_g, st.warm.lam_x
+    res = st.backend.solve(w0, p, lbg, ubg, lam_g, lam_x)
+    if not res.success and lam_g is not None:  # stale multipliers can mislead: retry cold
+        go_on = res.status == "Maximum_Iterations_Exceeded" and bool(np.isfinite(res.w).all())
+        cold = st.backend.solve(res.w if go_on else w0, p, lbg, ubg)
+        cold.solve_time_s += res.solve_time_s
+        cold.iterations += res.iterations
+        res = cold
+    st.warm = res
+    return res
 
 
 class Weighted:
@@ -120,31 +142,13 @@ class Weighted:
         res = _solve_level(st, p, guesses[0], st.tr.ubg)
         C = st.tr.costs(res.w, p).sum() if res.success else np.nan
         rep = LevelReport(
-            0, float(C), 0.0, res.success, res.status, res.iterations, res.solve_time_s
+            0, float(C), 0.0, res.success, res.status, res.iterations, res.solve_time_s, float(C)
         )
+        rep.loss = 0.0 if res.success else np.nan
         status = "ok" if res.success else res.status  # the solver's own is in the report
         return StrategyResult(
             res.w, st.tr, res.success, status, res.iterations, res.solve_time_s, [rep], [res.w]
         )
-
-
-def _solve_level(
-    st: LevelSolver, p: np.ndarray, w0: np.ndarray, ubg: np.ndarray, lbg: np.ndarray | None = None
-) -> NlpResult:
-    lam_g = lam_x = None
-    lbg = st.tr.lbg if lbg is None else lbg
-    if st.warm is not None and st.warm.success:
-        lam_g, lam_x = st.warm.lam_g, st.warm.lam_x
-    res = st.backend.solve(w0, p, lbg, ubg, lam_g, lam_x)
-    if not res.success and lam_g is not None:  # stale multipliers can mislead: retry cold
-        # out of iterations on the way somewhere: go on from there, else start again
-        go_on = res.status == "Maximum_Iterations_Exceeded" and bool(np.isfinite(res.w).all())
-        cold = st.backend.solve(res.w if go_on else w0, p, lbg, ubg)
-        cold.solve_time_s += res.solve_time_s
-        cold.iterations += res.iterations
-        res = cold
-    st.warm = res
-    return res
 
 
 class Hierarchical:
@@ -152,8 +156,10 @@ class Hierarchical:
 
     Args:
         problem: tasks with their levels; at least one level.
-        mode: ``"stagewise"`` (default, the paper's), ``"total"`` or ``"residual"``.
-        rel_tol, abs_tol: the relaxation of each higher level's optimal cost.
+        mode: ``"strict"`` (default), ``"stagewise"`` (the paper's literal form),
+            ``"total"`` or ``"residual"``.
+        rel_tol, abs_tol: the relaxation of each higher level's optimal cost (the relaxed
+            modes; ``strict`` has none).
         backend, options: NLP solver for every level.
     """
 
@@ -185,25 +191,7 @@ class Hierarchical:
         self.own_guess = backend.startswith("sqp")
         idx = {e.name: i for i, e in enumerate(problem.entries)}
         self.rows = [[idx[e.name] for e in st.entries] for st in self.solvers]
-
-    def _residual_box(
-        self, st: LevelSolver, j: int, w_j: np.ndarray, p: np.ndarray, c_star: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Bounds ``R*_k -+ delta_k`` on group ``j``'s residual rows of level ``st``, with
-        ``sum_i (|R*_ki| + delta_k)^2 = c*_k + tol_k`` (the cost bound at every corner)."""
-        tr, rows = st.tr, np.asarray(st.tr.hier_rows[j], dtype=int)
-        if st.g_fun is None:
-            st.g_fun = ca.Function("g", [tr.w, tr.p], [tr.g])
-        R = np.asarray(st.g_fun(w_j, p)).ravel()[rows]
-        stage = np.asarray(tr.g_stage, dtype=int)[rows]
-        tol = np.maximum(self.abs_tol, self.rel_tol * np.abs(c_star))
-        lo, hi = np.empty_like(R), np.empty_like(R)
-        for k in np.unique(stage):
-            sel = stage == k
-            a, m = np.abs(R[sel]).sum(), sel.sum()
-            delta = (np.sqrt(a * a + m * tol[k]) - a) / m
-            lo[sel], hi[sel] = R[sel] - delta, R[sel] + delta
-        return lo, hi
+        self.reg_rows = [idx[e.name] for e in reg]
 
     @property
     def transcription(self) -> Transcription:
@@ -215,65 +203,94 @@ class Hierarchical:
         for solver in self.solvers:
             solver.warm = None
 
+    def _bounds(
+        self, i: int, p: np.ndarray, optima: list[np.ndarray], level_w: list[np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Level ``i``'s row bounds: each higher level ``j`` kept at its optimum."""
+        st = self.solvers[i]
+        lbg, ubg = st.tr.lbg.copy(), st.tr.ubg.copy()
+        for j, c_star in enumerate(optima):
+            rows = np.asarray(st.tr.hier_rows[j], dtype=int)
+            if self.mode == "strict":
+                R = self._rows_at(st, level_w[j], p)[rows]
+                fixed = ~st.tr.g_movable[rows]  # no decision moves them: left out
+                lbg[rows] = np.where(fixed, -np.inf, R)
+                ubg[rows] = np.where(fixed, np.inf, R)
+            elif self.mode == "residual":
+                lbg[rows], ubg[rows] = self._residual_box(st, j, level_w[j], p, c_star)
+            else:
+                bound = c_star + np.maximum(self.abs_tol, self.rel_tol * np.abs(c_star))
+                ubg[rows] = bound if self.mode == "stagewise" else bound.sum()
+        return lbg, ubg
+
+    def _rows_at(self, st: LevelSolver, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Level ``st``'s constraint rows evaluated at ``w``."""
+        if st.g_fun is None:
+            st.g_fun = ca.Function("g", [st.tr.w, st.tr.p], [st.tr.g])
+        return np.asarray(st.g_fun(w, p)).ravel()
+
+    def _residual_box(
+        self, st: LevelSolver, j: int, w_j: np.ndarray, p: np.ndarray, c_star: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds ``R*_k -+ delta_k`` on group ``j``'s residual rows of level ``st``, with
+        ``sum_i (|R*_ki| + delta_k)^2 = c*_k + tol_k`` (the cost bound at every corner)."""
+        tr, rows = st.tr, np.asarray(st.tr.hier_rows[j], dtype=int)
+        R = self._rows_at(st, w_j, p)[rows]
+        stage = np.asarray(tr.g_stage, dtype=int)[rows]
+        tol = np.maximum(self.abs_tol, self.rel_tol * np.abs(c_star))
+        lo, hi = np.empty_like(R), np.empty_like(R)
+        for k in np.unique(stage):
+            sel = stage == k
+            a, m = np.abs(R[sel]).sum(), sel.sum()
+            delta = (np.sqrt(a * a + m * tol[k]) - a) / m
+            lo[sel], hi[sel] = R[sel] - delta, R[sel] + delta
+        return lo, hi
+
+    def _start(
+        self, i: int, guesses: list[np.ndarray | None], w_best: np.ndarray | None
+    ) -> np.ndarray:
+        """Level ``i``'s initial guess: its own (shifted) one for an SQP, which needs no
+        feasible start, else the higher level's solution (feasible: interior points like it)."""
+        mine = guesses[i] if i < len(guesses) else None
+        if w_best is None:
+            return mine if mine is not None else guesses[0]
+        return mine if (mine is not None and self.own_guess) else w_best
+
     def solve(self, p: np.ndarray, guesses: list[np.ndarray | None]) -> StrategyResult:
         """Solve level by level; a failed lower level keeps the last successful solution.
 
-        Level ``i`` starts from ``guesses[i]`` (e.g. its own previous solution, shifted) if
-        given and the backend is an SQP (which needs no feasible start), else from the
-        higher level's solution (feasible for its constraints: what interior-point
-        methods like). ``guesses[0]`` must be given.
+        ``guesses[i]`` is level ``i``'s guess (e.g. its own previous solution, shifted),
+        used as ``_start`` says; ``guesses[0]`` must be given.
         """
         reports: list[LevelReport] = []
         optima: list[np.ndarray] = []
+        level_w: list[np.ndarray] = []
         w_best: np.ndarray | None = None
         total_t, total_it, status = 0.0, 0, "ok"
-        level_w: list[np.ndarray] = []
         for i, st in enumerate(self.solvers):
-            lbg, ubg = st.tr.lbg.copy(), st.tr.ubg.copy()
-            for j, c_star in enumerate(optima):
-                bound = c_star + np.maximum(self.abs_tol, self.rel_tol * np.abs(c_star))
-                rows = st.tr.hier_rows[j]
-                if self.mode == "residual":
-                    lbg[rows], ubg[rows] = self._residual_box(st, j, level_w[j], p, c_star)
-                else:
-                    ubg[rows] = bound if self.mode == "stagewise" else bound.sum()
-            mine = guesses[i] if i < len(guesses) else None
-            if w_best is None:
-                w0 = mine if mine is not None else guesses[0]
-            else:
-                w0 = mine if (mine is not None and self.own_guess) else w_best
-            res = _solve_level(st, p, w0, ubg, lbg)
+            lbg, ubg = self._bounds(i, p, optima, level_w)
+            res = _solve_level(st, p, self._start(i, guesses, w_best), ubg, lbg)
             total_t += res.solve_time_s
             total_it += res.iterations
             if not res.success:
                 reports.append(
                     LevelReport(
-                        self.levels[i],
-                        np.nan,
-                        np.nan,
-                        False,
-                        res.status,
-                        res.iterations,
+                        self.levels[i], np.nan, np.nan, False, res.status, res.iterations,
                         res.solve_time_s,
                     )
-                )
+                )  # fmt: skip
                 status = res.status
                 break
-            own = _level_cost(st.tr, res.w, p, self.rows[i])
-            before = (
-                0.0 if w_best is None else float(_level_cost(st.tr, w_best, p, self.rows[i]).sum())
-            )
+            C = st.tr.costs(res.w, p)
+            own = C[self.rows[i]].sum(axis=0)
+            before = np.nan if w_best is None else float(st.tr.costs(w_best, p)[self.rows[i]].sum())
             reports.append(
                 LevelReport(
-                    self.levels[i],
-                    float(own.sum()),
-                    0.0 if w_best is None else before - float(own.sum()),
-                    True,
-                    res.status,
-                    res.iterations,
-                    res.solve_time_s,
+                    self.levels[i], float(own.sum()), 0.0 if w_best is None else before - own.sum(),
+                    True, res.status, res.iterations, res.solve_time_s,
+                    objective=float(own.sum() + C[self.reg_rows].sum()),
                 )
-            )
+            )  # fmt: skip
             optima.append(own if self.mode != "total" else np.array([own.sum()]))
             w_best = res.w
             level_w.append(res.w)
@@ -282,14 +299,16 @@ class Hierarchical:
             return StrategyResult(
                 np.full(n, np.nan), self.transcription, False, status, total_it, total_t, reports
             )
-        partial = len(optima) < len(self.solvers)
+        self._losses(reports, w_best, p)
+        partial = len(level_w) < len(self.solvers)
         return StrategyResult(
-            w_best,
-            self.transcription,
-            True,
-            f"partial: {status}" if partial else "ok",
-            total_it,
-            total_t,
-            reports,
-            level_w,
-        )
+            w_best, self.transcription, True, f"partial: {status}" if partial else "ok",
+            total_it, total_t, reports, level_w,
+        )  # fmt: skip
+
+    def _losses(self, reports: list[LevelReport], w: np.ndarray, p: np.ndarray) -> None:
+        """Each solved level's cost at the applied solution ``w`` minus at its optimum."""
+        C = self.transcription.costs(w, p)
+        for rep, rows in zip(reports, self.rows, strict=False):
+            if rep.success:
+                rep.loss = float(C[rows].sum()) - rep.cost

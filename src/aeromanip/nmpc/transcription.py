@@ -23,7 +23,10 @@ from aeromanip.nmpc.constraints import PathRows
 from aeromanip.nmpc.problem import Problem, TaskEntry
 from aeromanip.tasks.base import Stage
 
-MODES = ("stagewise", "total", "residual")  # how a hierarchy level keeps higher optima
+# how a hierarchy level keeps the higher levels at their optima: "strict" pins their
+# weighted residual vectors (the others bound their costs, relaxed by tolerances)
+MODES = ("strict", "stagewise", "total", "residual")
+RESIDUAL_ROWS = ("strict", "residual")  # modes whose rows are the residuals themselves
 COUPLING = -1  # the stage of a row that couples every stage (mode "total")
 
 
@@ -272,7 +275,7 @@ class Transcription:
                 rows = book.add(hier[j], -np.inf, np.inf, f"hier{j}", k)
                 self.hier_rows[j] += rows
                 self.hier_residuals.append((rows[0], r))
-            elif self.mode == "residual":  # linear in the residuals: no curvature term
+            elif self.mode in RESIDUAL_ROWS:  # linear in the residuals: no curvature term
                 self.hier_rows[j] += book.add(r, -np.inf, np.inf, f"hier{j}", k)
             else:
                 c_sum, r_list = totals[j]
@@ -294,6 +297,13 @@ class Transcription:
         self.shift_w[self.shift_w >= nw] -= s
         self.shift_g = shift_map(list(zip(self.g_kind, self.g_stage, strict=True)))
         self._costs_buf: tuple | None = None
+        # rows that no decision can change: they depend on the measured stage 0 alone
+        jac = ca.jacobian(self.g, self.w).sparsity()
+        rows, cols = np.array(jac.get_triplet(), dtype=int).reshape(2, -1)
+        movable = np.zeros(self.g.numel(), dtype=bool)
+        movable[rows[cols >= self.nz]] = True
+        #: per row of g: whether any decision variable (not the pinned stage 0) moves it
+        self.g_movable = movable
 
     # -- evaluation and packing ---------------------------------------------------------
     def use_stage_costs(self, f: ca.Function) -> None:

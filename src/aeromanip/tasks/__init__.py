@@ -4,6 +4,7 @@ from aeromanip.tasks.base import TASKS, Stage, Task
 from aeromanip.tasks.cog import CogAlignment, CogVelocity
 from aeromanip.tasks.effort import ControlRate
 from aeromanip.tasks.manipulability import ConditionNumber, Manipulability
+from aeromanip.tasks.posture import Posture
 from aeromanip.tasks.tracking import EndEffectorTracking
 
 __all__ = [
@@ -14,6 +15,7 @@ __all__ = [
     "ControlRate",
     "EndEffectorTracking",
     "Manipulability",
+    "Posture",
     "Stage",
     "Task",
 ]
