@@ -279,7 +279,7 @@ def test_factory_kinds(tmp_path):
                 "amplitude": [1, 1, 1],
                 "frequency": [0.1, -0.1, 0.1],
             },
-            "scenario.reference.frequency: must be >= 0",
+            r"scenario.reference.frequency: must be in \[0, 100\] Hz",
         ),
     ],
 )

@@ -9,7 +9,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_ruff_check_is_clean():
     out = subprocess.run(
-        [sys.executable, "-m", "ruff", "check", "src", "tests", "benchmarks", "examples"],
+        [sys.executable, "-m", "ruff", "check", "src", "tests", "benchmarks", "examples", "tools"],
         cwd=ROOT,
         capture_output=True,
         text=True,

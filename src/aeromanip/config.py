@@ -19,18 +19,32 @@ from aeromanip.errors import ConfigError
 _MISSING = object()
 
 
+MAX_FILE_BYTES = 10_000_000  # a configuration file larger than this is not one
+
+
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Read a TOML file; a missing or malformed file is a ``ConfigError``."""
+    """Read a TOML file; a missing, special (FIFO, device), huge or malformed file is a
+    ``ConfigError``."""
     p = Path(path)
+    if not p.exists():
+        raise ConfigError(f"{p}: file not found")
+    if not p.is_file():  # a FIFO or a device would block or never end
+        raise ConfigError(f"{p}: not a regular file")
+    if p.stat().st_size > MAX_FILE_BYTES:
+        raise ConfigError(f"{p}: {p.stat().st_size} bytes, too large for a configuration file")
     try:
-        with p.open("rb") as f:
-            return tomllib.load(f)
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: file not found") from None
-    except (IsADirectoryError, PermissionError) as e:
+        return tomllib.loads(p.read_bytes().decode("utf-8"))
+    except OSError as e:
         raise ConfigError(f"{p}: cannot read: {e.strerror}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{p}: malformed TOML: {e}") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{p}: not UTF-8 text (byte {e.start})") from None
+    except (tomllib.TOMLDecodeError, RecursionError) as e:
+        raise ConfigError(f"{p}: malformed TOML: {_one_line(e)}") from None
+
+
+def _one_line(e: BaseException) -> str:
+    text = str(e) if not isinstance(e, RecursionError) else "nested too deeply"
+    return text.replace("\n", " ")
 
 
 def builtin_descriptions(package: str) -> dict[str, str]:
@@ -74,8 +88,9 @@ class Table:
         self.resolved: dict[str, Any] = {}
 
     def key(self, name: str) -> str:
-        """The full key path of ``name`` in this table."""
-        return f"{self.path}.{name}" if self.path else name
+        """The full key path of ``name`` in this table (an odd name quoted)."""
+        shown = name if name and name.isprintable() and "." not in name else repr(name)
+        return f"{self.path}.{shown}" if self.path else shown
 
     def has(self, name: str) -> bool:
         """Whether the table holds ``name``."""
@@ -236,13 +251,25 @@ def parse_override(text: str) -> tuple[list[str], Any]:
         parsed = tomllib.loads(f"v = {value.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         parsed = value.strip()
+    except RecursionError:
+        raise ConfigError(f"--set {key}: the value is nested too deeply") from None
     return key.split("."), parsed
 
 
-def apply_override(data: dict[str, Any], path: list[str], value: Any, where: str) -> None:
-    """Set ``data[path...] = value`` in place; every table on the path must exist."""
+def apply_override(
+    data: dict[str, Any],
+    path: list[str],
+    value: Any,
+    where: str,
+    free_form: tuple[str, ...] = (),
+) -> None:
+    """Set ``data[path...] = value`` in place; every table on the path must exist, but
+    below a ``free_form`` table (a dotted key path) missing tables are created."""
     node: Any = data
     for i, part in enumerate(path[:-1]):
+        free = any(".".join(path[:i]).startswith(f) for f in free_form if i)
+        if free and isinstance(node, dict) and part not in node:
+            node[part] = {}
         if not isinstance(node, dict) or part not in node or not isinstance(node[part], dict):
             raise ConfigError(f"{where}: unknown key {'.'.join(path[: i + 1])!r}")
         node = node[part]

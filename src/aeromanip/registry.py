@@ -91,7 +91,7 @@ class Registry(Generic[T]):
             raise ConfigError(f"{key}: {kind!r}: expected 'package.module:Class'")
         try:
             module = importlib.import_module(module_name)
-        except ImportError as e:
+        except (ImportError, TypeError, ValueError) as e:  # relative or malformed names too
             raise ConfigError(f"{key}: {kind!r}: cannot import {module_name!r} ({e})") from None
         obj = module
         for part in attr.split("."):

@@ -20,6 +20,11 @@ EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
 
+def one_line(text: str) -> str:
+    """``text`` on one line: line breaks (e.g. inside a quoted key) shown as ``\\n``."""
+    return text.replace("\r", "\\r").replace("\n", "\\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``aeromanip`` argument parser."""
     parser = argparse.ArgumentParser(
@@ -38,8 +43,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with stop_on_signals():
             return int(args.func(args))
-    except AeromanipError as e:
-        print(f"aeromanip: error: {e}", file=sys.stderr)
+    except AeromanipError as e:  # one line, whatever user text the message quotes
+        print(f"aeromanip: error: {one_line(str(e))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except BrokenPipeError:  # e.g. piped into `head`
         sys.stderr.close()

@@ -35,8 +35,12 @@ def check_writable(path: Path, what: str = "--out") -> None:
         parent = parent.parent
     if not parent.is_dir():
         raise ConfigError(f"{what}: {path} cannot be created: {parent} is not a directory")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ConfigError(f"{what}: {path} cannot be created: {parent} is not writable")
+    probe = parent / f".aeromanip-probe-{os.getpid()}"
+    try:  # os.access says yes to root everywhere, even under /proc: try for real
+        probe.mkdir()
+        probe.rmdir()
+    except OSError as e:
+        raise ConfigError(f"{what}: {path} cannot be created in {parent}: {e.strerror}") from None
 
 
 class RunDirectory:

@@ -159,6 +159,15 @@ def _bounds(t: Table, robot: RobotSpec) -> tuple[Bounds, Bounds]:
     if flags["joint_limits"]:
         shrink.update({f"q{i + 1}": margins["joint_margin"] for i in range(robot.n_joints)})
     bt.done()
+    for dof, m in shrink.items():  # a margin may not close a bound: say which key
+        i = limits.names.index(dof)
+        lo, hi = limits.x_lower[i], limits.x_upper[i]
+        if lo + m > hi - m:
+            key = bt.key("joint_margin" if dof.startswith("q") else "platform_margin")
+            raise ConfigError(
+                f"{key}: {m:g} closes the bounds of {dof} [{lo:.4g}, {hi:.4g}] "
+                f"(at most {(hi - lo) / 2:.4g})"
+            )
     return limits, limits.tightened(shrink)
 
 

@@ -22,6 +22,8 @@ from aeromanip.config import (
 )
 from aeromanip.errors import ConfigError
 
+FREE_FORM = ("controller.solver_options",)  # tables whose keys the backend, not we, knows
+
 
 def builtin_scenarios() -> dict[str, str]:
     """Built-in scenario names mapped to their one-line description."""
@@ -46,7 +48,12 @@ def scenario_source(
     if path in _seen:
         raise ConfigError(f"{path}: extends: a cycle ({' -> '.join(map(str, _seen))})")
     target = path.parent / base if base.endswith(".toml") else base
-    parent, parent_dir = scenario_source(target, (*_seen, path))
+    try:
+        parent, parent_dir = scenario_source(target, (*_seen, path))
+    except ConfigError as e:
+        if str(e).startswith(f"{path}:"):  # already names this file (a cycle)
+            raise
+        raise ConfigError(f"{path}: extends: {e}") from None
     parent.pop("variants", None)  # variants are a scenario's own
     _anchor_paths(parent, parent_dir)  # its files stay where it names them
     return _merge(parent, data), path.parent
@@ -97,7 +104,7 @@ def expand_variants(
         controller.setdefault("solver_options", {})
     for text in overrides:
         path, value = parse_override(text)
-        apply_override(data, path, value, f"--set {text}")
+        apply_override(data, path, value, f"--set {text}", FREE_FORM)
     variants = data.pop("variants", {})
     if not isinstance(variants, dict):
         raise ConfigError("variants: must be a table of named variants")

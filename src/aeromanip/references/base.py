@@ -26,6 +26,8 @@ from aeromanip.errors import ConfigError
 from aeromanip.registry import Registry
 
 AXES: dict[str, int] = {"x": 0, "y": 1, "z": 2}
+MAX_COORD = 1e4  # [m] positions and amplitudes beyond this are no UAM's
+MAX_FREQUENCY_HZ = 100.0  # [Hz] a reference faster than this is not one a UAM follows
 
 
 class Reference(ABC):
@@ -57,11 +59,17 @@ def as_times(times: np.ndarray | Sequence[float]) -> np.ndarray:
     return np.atleast_1d(np.asarray(times, dtype=float)).reshape(-1)
 
 
-def vec3(v: Any, name: str) -> np.ndarray:
-    """``v`` as 3 finite floats, or a ``ConfigError`` naming ``name``."""
-    a = np.asarray(v, dtype=float).reshape(-1)
+def vec3(v: Any, name: str, limit: float = MAX_COORD) -> np.ndarray:
+    """``v`` as 3 finite floats of magnitude at most ``limit``, or a ``ConfigError``
+    naming ``name``."""
+    try:
+        a = np.asarray(v, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name}: expected 3 finite numbers, got {v!r}") from None
     if a.shape != (3,) or not np.all(np.isfinite(a)):
         raise ConfigError(f"{name}: expected 3 finite numbers, got {v!r}")
+    if np.abs(a).max() > limit:
+        raise ConfigError(f"{name}: values must be within +-{limit:g}, got {a.tolist()}")
     return a
 
 

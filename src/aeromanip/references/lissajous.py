@@ -10,7 +10,7 @@ import numpy as np
 
 from aeromanip.config import Table
 from aeromanip.errors import ConfigError
-from aeromanip.references.base import REFERENCES, Reference, as_times, vec3
+from aeromanip.references.base import MAX_FREQUENCY_HZ, REFERENCES, Reference, as_times, vec3
 
 PHASE = (0.0, 0.0, 0.0)  # [rad] per axis
 DURATION = 60.0  # [s] nominal run length
@@ -36,10 +36,13 @@ class Lissajous(Reference):
     ) -> None:
         self.center = vec3(center, f"{name}.center")
         self.amplitude = vec3(amplitude, f"{name}.amplitude")
-        self.frequency = vec3(frequency_hz, f"{name}.frequency")
+        self.frequency = vec3(frequency_hz, f"{name}.frequency", MAX_FREQUENCY_HZ)
         self.phase = vec3(phase, f"{name}.phase")
         if np.any(self.frequency < 0):
-            raise ConfigError(f"{name}.frequency: must be >= 0 Hz, got {list(self.frequency)}")
+            raise ConfigError(
+                f"{name}.frequency: must be in [0, {MAX_FREQUENCY_HZ:g}] Hz, "
+                f"got {self.frequency.tolist()}"
+            )
         if not (math.isfinite(duration) and duration > 0):
             raise ConfigError(f"{name}.duration: must be > 0 s, got {duration!r}")
         self.duration = float(duration)

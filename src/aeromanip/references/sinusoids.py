@@ -10,7 +10,16 @@ import numpy as np
 
 from aeromanip.config import Table, to_floats
 from aeromanip.errors import ConfigError
-from aeromanip.references.base import AXES, REFERENCES, Reference, as_times, direction, vec3
+from aeromanip.references.base import (
+    AXES,
+    MAX_COORD,
+    MAX_FREQUENCY_HZ,
+    REFERENCES,
+    Reference,
+    as_times,
+    direction,
+    vec3,
+)
 
 
 @REFERENCES.register("sinusoids")
@@ -45,10 +54,14 @@ class SinusoidPhases(Reference):
             dur, amp, freq = (float(v) for v in ph)
             if not (math.isfinite(dur) and dur > 0):
                 raise ConfigError(f"{where}.duration: must be > 0 s, got {dur!r}")
-            if not math.isfinite(amp):
-                raise ConfigError(f"{where}.amplitude: must be finite, got {amp!r}")
-            if not (math.isfinite(freq) and freq >= 0):
-                raise ConfigError(f"{where}.frequency: must be >= 0 Hz, got {freq!r}")
+            if not (math.isfinite(amp) and abs(amp) <= MAX_COORD):
+                raise ConfigError(
+                    f"{where}.amplitude: must be within +-{MAX_COORD:g} m, got {amp!r}"
+                )
+            if not (math.isfinite(freq) and 0 <= freq <= MAX_FREQUENCY_HZ):
+                raise ConfigError(
+                    f"{where}.frequency: must be in [0, {MAX_FREQUENCY_HZ:g}] Hz, got {freq!r}"
+                )
             rows.append((dur, amp, freq))
         self.phases: tuple[tuple[float, float, float], ...] = tuple(rows)
         ph_arr = np.array(rows)

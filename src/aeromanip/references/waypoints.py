@@ -96,7 +96,7 @@ def _checked_times(times: Sequence[float] | np.ndarray, n: int, name: str) -> np
         k = int(bad[0]) + 1
         raise ConfigError(
             f"{name}.times[{k}]: times must be strictly increasing, "
-            f"got {tk[k - 1]!r} then {tk[k]!r}"
+            f"got {float(tk[k - 1])!r} then {float(tk[k])!r}"
         )
     return tk
 

@@ -22,6 +22,7 @@ PLATFORM_DOFS: tuple[str, ...] = ("x", "y", "z", "yaw")
 Vec3 = tuple[float, float, float]
 MAX_PLATFORM_MASS = 1e4  # [kg]
 MAX_LINK_MASS = 1e3  # [kg]
+MAX_INERTIA = 1e4  # [kg m^2] per entry
 # principal moments may miss the triangle inequality by this share of the largest one:
 # hand-written and CAD-exported inertias round (the MJCF balances what is left)
 INERTIA_SLACK = 0.01
@@ -267,6 +268,8 @@ def _physical_inertia(ii: Sequence[float], key: str) -> None:
     (``I1 + I2 >= I3``: what any mass distribution gives)."""
     for k, v in enumerate(ii):
         _finite(v, f"{key}[{k}]")
+        if abs(v) > MAX_INERTIA:
+            raise ConfigError(f"{key}[{k}]: must be within +-{MAX_INERTIA:g} kg m^2, got {v!r}")
     ixx, iyy, izz, ixy, ixz, iyz = ii
     m = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
     lam = np.linalg.eigvalsh(m)

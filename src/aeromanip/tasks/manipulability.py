@@ -16,13 +16,15 @@ EPS = 1e-9  # [units of D] keeps 1/D finite at singular configurations
 DELTA = 1e-9  # [units of J_eq J_eq^T] keeps rho finite at singular configurations
 KINK = 1e-4  # rounding of rho's kinks (spectral.py), so that Newton-type solvers converge
 MAX_KINK = 0.1  # a 10 % rounding of rho already blurs it
+MAX_EPS = 1.0  # [units of D]
+MAX_DELTA = 1.0  # [units of J_eq J_eq^T]
 
 
 def _check(value: float, key: str, low: float, high: float) -> float:
     """``value`` as a float in ``[low, high]``, or a ``ConfigError`` naming ``key``."""
     ok = isinstance(value, int | float) and not isinstance(value, bool) and low <= value <= high
     if not ok:
-        raise ConfigError(f"tasks.{key}: must be a number in [{low:g}, {high:g}], got {value!r}")
+        raise ConfigError(f"{key}: must be a number in [{low:g}, {high:g}], got {value!r}")
     return float(value)
 
 
@@ -38,7 +40,7 @@ class Manipulability(Task):
 
     def __init__(self, tracked: str | Sequence[str] = TRACKED, eps: float = EPS) -> None:
         self.tracked = tracked
-        self.eps = _check(eps, "eps", 0.0, 1.0)
+        self.eps = _check(eps, "Manipulability.eps", 0.0, MAX_EPS)
 
     def residual(self, stage: Stage) -> ca.SX:
         """``1 / (D + eps)``."""
@@ -48,7 +50,8 @@ class Manipulability(Task):
     @classmethod
     def from_table(cls, table: Table, reference: Reference) -> Manipulability:
         """Options: ``tracked``, ``eps``."""
-        return cls(table.str("tracked", TRACKED), eps=table.float("eps", EPS))
+        eps = table.float("eps", EPS, minimum=0.0, maximum=MAX_EPS)
+        return cls(table.str("tracked", TRACKED), eps=eps)
 
 
 @TASKS.register("condition")
@@ -67,8 +70,8 @@ class ConditionNumber(Task):
         self, tracked: str | Sequence[str] = TRACKED, delta: float = DELTA, kink: float = KINK
     ) -> None:
         self.tracked = tracked
-        self.delta = _check(delta, "delta", 0.0, 1.0)
-        self.kink = _check(kink, "kink", 0.0, MAX_KINK)
+        self.delta = _check(delta, "ConditionNumber.delta", 0.0, MAX_DELTA)
+        self.kink = _check(kink, "ConditionNumber.kink", 0.0, MAX_KINK)
 
     def residual(self, stage: Stage) -> ca.SX:
         """``1 - rho``."""
@@ -79,6 +82,6 @@ class ConditionNumber(Task):
         """Options: ``tracked``, ``delta``, ``kink``."""
         return cls(
             table.str("tracked", TRACKED),
-            delta=table.float("delta", DELTA),
-            kink=table.float("kink", KINK),
+            delta=table.float("delta", DELTA, minimum=0.0, maximum=MAX_DELTA),
+            kink=table.float("kink", KINK, minimum=0.0, maximum=MAX_KINK),
         )

@@ -14,6 +14,7 @@ Built-in backends (one module each, registered by name in ``BACKENDS``):
 
 from __future__ import annotations
 
+import re
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -86,3 +87,16 @@ def make_backend(
     """The backend registered as ``name`` (or ``"package.module:Class"``) for
     ``transcription``."""
     return BACKENDS.get(name, "controller.backend")(transcription, options)
+
+
+def casadi_message(e: Exception) -> str:
+    """CasADi's multi-line error as one line: its messages, without source locations,
+    suggestions or option listings."""
+    parts = []
+    for line in str(e).splitlines():
+        line = re.sub(r"^\.\.\./\S+?:\d+: ", "", line.strip())
+        if not line or line.startswith(("Did you mean", ">")):
+            break
+        if not line.startswith(("Error calling", "Error in Function::call")):
+            parts.append(line.rstrip(":"))
+    return "; ".join(parts) or str(e).strip()[:200]

@@ -21,6 +21,7 @@ import hashlib
 import logging
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -30,6 +31,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from aeromanip.interrupts import deferred
 from aeromanip.nmpc.backends.cache import CacheEntry
 
 log = logging.getLogger(__name__)
@@ -99,23 +101,35 @@ def compiled_all(fs: Sequence[ca.Function], enabled: bool = True) -> list[ca.Fun
 
 def _build_all(todo: list[tuple[ca.Function, CacheEntry]], cc: str) -> set[str]:
     """Build the entries (their locks held); return the names that failed."""
-    jobs: list[tuple[ca.Function, CacheEntry, subprocess.Popen, str, Path]] = []
+    jobs: list[tuple[ca.Function, CacheEntry, subprocess.Popen | None, str, Path]] = []
     failed: set[str] = set()
     try:
         for f, entry in todo:
             entry.discard()
+            tmp = tempfile.mkdtemp(prefix=f"build-{entry.lib.stem}-", dir=entry.lib.parent)
+            jobs.append((f, entry, None, tmp, Path(tmp) / entry.lib.name))
             try:
-                jobs.append((f, entry, *_start(f, cc, entry.lib)))
+                cmd = _generate(f, cc, Path(tmp), entry.lib.name)
+                with deferred():  # the compiler is started and recorded, or neither
+                    # its own process group: an interrupt kills gcc's cc1 and as too
+                    proc = subprocess.Popen(
+                        cmd,
+                        stdout=subprocess.PIPE,
+                        stderr=subprocess.STDOUT,
+                        start_new_session=True,
+                    )
+                    jobs[-1] = (*jobs[-1][:2], proc, *jobs[-1][3:])
             except OSError as e:
                 _warn_once(f"codegen: compiling {f.name()} failed ({e}); evaluating in-process")
                 failed.add(f.name())
         for f, entry, proc, _, out in jobs:
-            if not _finish(f, entry, proc, out):
+            if proc is not None and not _finish(f, entry, proc, out):
                 failed.add(f.name())
     finally:  # normal end or an interrupt: no compiler left running, no build directory
         for _, _, proc, tmp, _ in jobs:
-            if proc.poll() is None:
-                proc.kill()
+            if proc is not None and proc.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
             shutil.rmtree(tmp, ignore_errors=True)
     return failed
@@ -134,17 +148,17 @@ def _load(f: ca.Function, entry: CacheEntry, ok: bool) -> ca.Function:
         return f
 
 
-def _start(f: ca.Function, cc: str, lib: Path) -> tuple[subprocess.Popen, str, Path]:
-    """Generate the C source of ``f`` and start compiling it (in its own directory)."""
-    tmp = tempfile.mkdtemp(prefix=f"build-{lib.stem}-", dir=lib.parent)
+def _generate(f: ca.Function, cc: str, tmp: Path, lib_name: str) -> list[str]:
+    """Write the C source of ``f`` into ``tmp``; return the compiler command.
+
+    CasADi generates the source in C++ without giving Python control back: a signal
+    that arrives meanwhile is handled when it returns (seconds for the largest
+    Functions)."""
     src = f"{f.name()}.c"
     cg = ca.CodeGenerator(src, {"with_header": False})
     cg.add(f)
-    cg.generate(tmp + os.sep)
-    out = Path(tmp) / lib.name
-    cmd = [cc, *CFLAGS, str(Path(tmp) / src), "-o", str(out), "-lm"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    return proc, tmp, out
+    cg.generate(str(tmp) + os.sep)
+    return [cc, *CFLAGS, str(tmp / src), "-o", str(tmp / lib_name), "-lm"]
 
 
 def _finish(f: ca.Function, entry: CacheEntry, proc: subprocess.Popen, out: Path) -> bool:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 import signal
 import threading
 import time
@@ -14,7 +13,7 @@ import numpy as np
 
 from aeromanip.errors import ConfigError
 from aeromanip.interrupts import deferred, raise_if_interrupted
-from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult
+from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult, casadi_message
 from aeromanip.nmpc.transcription import Transcription
 
 IPOPT_OPTIONS: dict[str, Any] = {
@@ -66,7 +65,7 @@ class NlpBackend(Backend):
             solver(x0=[1.0, 0.0, 0.0], lbx=[1.0, -ca.inf, -ca.inf], ubx=[1.0, ca.inf, ca.inf])
         except RuntimeError as e:
             raise ConfigError(
-                f"solver_options: {cls.solver_name} rejects the options: {one_line(e)}"
+                f"solver_options: {cls.solver_name} rejects the options: {casadi_message(e)}"
             ) from None
 
     def __init__(
@@ -198,17 +197,6 @@ def _nlpsol(name: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function
     try:
         return ca.nlpsol(f"nmpc_{name}", name, nlp, opts)
     except RuntimeError as e:
-        raise ConfigError(f"solver_options: {name} rejects the options: {one_line(e)}") from None
-
-
-def one_line(e: Exception) -> str:
-    """CasADi's multi-line error as one line: its messages, without source locations,
-    suggestions or option listings."""
-    parts = []
-    for line in str(e).splitlines():
-        line = re.sub(r"^\.\.\./\S+?:\d+: ", "", line.strip())
-        if not line or line.startswith(("Did you mean", ">")):
-            break
-        if not line.startswith(("Error calling", "Error in Function::call")):
-            parts.append(line.rstrip(":"))
-    return "; ".join(parts) or str(e).strip()[:200]
+        raise ConfigError(
+            f"solver_options: {name} rejects the options: {casadi_message(e)}"
+        ) from None

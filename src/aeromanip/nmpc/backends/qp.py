@@ -19,6 +19,7 @@ import casadi as ca
 import numpy as np
 
 from aeromanip.errors import ConfigError
+from aeromanip.nmpc.backends.base import casadi_message
 from aeromanip.nmpc.backends.codegen import Buffered, quiet_stdout
 
 SCREEN_ROUNDS = 4  # solves on screened rows before the full QP is solved
@@ -74,6 +75,21 @@ class DenseQp:
         self._solvers: dict[int, Buffered] = {}
         self.lam_a = np.zeros(m)  # the last multipliers: their rows go to the solver
         self._solver(m)
+
+    @staticmethod
+    def check_options(solver: str, options: dict[str, Any]) -> None:
+        """A QP solver that exists and takes ``options`` (tried on a one-variable QP)."""
+        if solver not in SOLVERS:
+            raise ConfigError(f"solver_options.qpsol: {solver!r} is not one of {list(SOLVERS)}")
+        opts = {"error_on_fail": False, "print_time": False, **SOLVERS[solver], **options}
+        try:
+            with quiet_stdout():
+                qp = ca.conic("aeromanip_check", solver, {"h": ca.Sparsity.dense(1, 1)}, opts)
+                qp(h=1.0, g=0.0, lbx=-1.0, ubx=1.0)
+        except RuntimeError as e:
+            raise ConfigError(
+                f"solver_options.qpsol_options: {solver} rejects them: {casadi_message(e)}"
+            ) from None
 
     def reset(self) -> None:
         """Forget the last multipliers."""

@@ -106,8 +106,8 @@ OPTION_CHECKS: dict[str, Callable[[Any], str]] = {
     "acceptable_tol": _number(positive=True),
     "constr_viol_tol": _number(positive=True),
     "acceptable_iter": _int_at_least(1),
-    "rti": _one_of((True, False)),
-    "codegen": _one_of((True, False)),
+    "rti": lambda v: "" if isinstance(v, bool) else "true or false",
+    "codegen": lambda v: "" if isinstance(v, bool) else "true or false",
     "hessian": _one_of(HESSIANS),
     "regularization": _number(positive=False),
     "qpsol": _one_of(tuple(QP_SOLVERS)),
@@ -166,6 +166,7 @@ class SqpBackend(Backend):
             allowed = check(opts[key])
             if allowed:
                 raise ConfigError(f"solver_options.{key}: {opts[key]!r} is not {allowed}")
+        DenseQp.check_options(opts["qpsol"], opts["qpsol_options"])
         return opts
 
     @classmethod

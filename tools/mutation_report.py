@@ -1,0 +1,82 @@
+"""Kill rate per module from mutmut's results (``mutmut results --all true``).
+
+Usage, after ``AEROMANIP_CODEGEN=0 OPENBLAS_NUM_THREADS=1 mutmut run --max-children 2``::
+
+    python tools/mutation_report.py            # the table (Markdown) on standard output
+    python tools/mutation_report.py --survivors # every mutant not killed, by module
+
+A mutant counts as killed when a test failed (``killed``) or it ran past mutmut's time
+limit (``timeout``: an infinite loop is a detected bug); ``survived`` and ``no tests``
+count against the module; ``skipped`` and the type-checker's ``caught by type check``
+are not counted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import subprocess
+import sys
+from collections import Counter, defaultdict
+
+LINE = re.compile(r"^\s*(?P<name>aeromanip\.\S+?)__mutmut_\d+: (?P<status>.+)$")
+KILLED = {"killed", "timeout"}
+NOT_COUNTED = {"skipped", "caught by type check", "not checked"}
+
+
+def module_of(name: str) -> str:
+    """``aeromanip.nmpc.backends.sqp.xǁSqpBackendǁsolve`` -> ``nmpc/backends/sqp.py``."""
+    mod = re.split(r"\.x[_ǁ]", name, maxsplit=1)[0]
+    return mod.removeprefix("aeromanip.").replace(".", "/") + ".py"
+
+
+def results() -> list[tuple[str, str]]:
+    """(mutant name, status) for every mutant."""
+    out = subprocess.run(
+        ["mutmut", "results", "--all", "true"], capture_output=True, text=True, check=True
+    ).stdout
+    return [(m["name"], m["status"].strip()) for m in map(LINE.match, out.splitlines()) if m]
+
+
+def table(rows: list[tuple[str, str]]) -> str:
+    """Markdown: per module, mutants, killed, survived, no tests, kill rate."""
+    per: dict[str, Counter] = defaultdict(Counter)
+    for name, status in rows:
+        per[module_of(name)][status] += 1
+    lines = [
+        "| module | mutants | killed | survived | no tests | kill rate |",
+        "|---|---|---|---|---|---|",
+    ]
+    total = Counter()
+    for mod in sorted(per):
+        c = per[mod]
+        total.update(c)
+        lines.append(_row(mod, c))
+    lines.append(_row("**all core modules**", total))
+    return "\n".join(lines)
+
+
+def _row(label: str, c: Counter) -> str:
+    killed = sum(c[s] for s in KILLED)
+    counted = sum(v for s, v in c.items() if s not in NOT_COUNTED)
+    rate = f"{100 * killed / counted:.1f} %" if counted else "-"
+    return f"| {label} | {counted} | {killed} | {c['survived']} | {c['no tests']} | {rate} |"
+
+
+def main() -> int:
+    """Print the table, or the mutants not killed."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--survivors", action="store_true", help="list the mutants not killed")
+    args = p.parse_args()
+    rows = results()
+    if args.survivors:
+        for name, status in sorted(rows):
+            if status not in KILLED | NOT_COUNTED:
+                print(f"{module_of(name)}\t{name}\t{status}")
+    else:
+        print(table(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
