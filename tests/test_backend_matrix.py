@@ -22,7 +22,11 @@ from aeromanip.nmpc.controller import Controller
 REFERENCE = {"ipopt.tol": 1e-10}
 # restarted at an answer, IPOPT's barrier must start small or it walks away from it
 RESTART = {**REFERENCE, "ipopt.mu_init": 1e-10, "ipopt.warm_start_bound_push": 1e-10}
-OPTIONS = {"fatrop": {"fatrop.tol": 1e-10}, "sqp": {"tol": 1e-9}}
+OPTIONS = {
+    "fatrop": {"fatrop.tol": 1e-10},
+    "sqp": {"tol": 1e-9, "qpsol": "daqp"},  # condensed, dense QP
+    "sqp-hpipm": {"tol": 1e-9, "qpsol": "hpipm"},  # multiple shooting, sparse QP
+}
 REL = 1e-6  # costs within this (relative) are the same optimum
 CASES = [(name, variant) for name in builtin_scenarios() for variant in load_scenarios(name)]
 
@@ -53,16 +57,17 @@ KNOWN = {  # cases that fail today, each with its issue: they must start passing
     ("clearance", "", "sqp"): "issue 14: from rest with the clearance binding, sqp stops in "
     "a local optimum 4x IPOPT's",
     ("clearance", "", "fatrop"): "issue 14: fatrop fails from rest with the clearance binding",
+    ("clearance", "", "sqp-hpipm"): "issue 14: as sqp (the same SQP on a sparse QP)",
 }
 
 
-@pytest.mark.parametrize("backend", ["sqp", "fatrop"])
+@pytest.mark.parametrize("backend", ["sqp", "sqp-hpipm", "fatrop"])
 @pytest.mark.parametrize(("name", "variant"), CASES, ids=[f"{n}/{v}" for n, v in CASES])
 def test_backend_reaches_an_optimum_no_worse_than_ipopts(name, variant, backend, request):
     if (name, variant, backend) in KNOWN:
         request.applymarker(pytest.mark.xfail(strict=True, reason=KNOWN[name, variant, backend]))
     sc = load_scenarios(name, only=variant or None)[variant]
-    got = solve(sc, backend, OPTIONS[backend])
+    got = solve(sc, backend.split("-")[0], OPTIONS[backend])
     ref = solve(sc, "ipopt", REFERENCE)
     mine, theirs = level_costs(got), level_costs(ref)
     if sc.strategy == "weighted":

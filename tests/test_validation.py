@@ -184,7 +184,12 @@ def test_bench_json_that_cannot_be_written_is_refused_before_measuring(
 
 SQP_BAD_OPTIONS = [
     ('max_iter="many"', "solver_options.max_iter", "'many'", "an integer >= 1"),
-    ('qpsol="gurobi"', "solver_options.qpsol", "'gurobi'", "one of ['daqp', 'qpoases']"),
+    (
+        'qpsol="gurobi"',
+        "solver_options.qpsol",
+        "'gurobi'",
+        "one of ['auto', 'daqp', 'qpoases', 'hpipm']",
+    ),
     ("tol=-1", "solver_options.tol", "-1", "a finite number >= 0"),
     ("nosuch=1", "solver_options.nosuch", "unknown sqp option", "known: max_iter"),
 ]

@@ -12,11 +12,13 @@ How it is built, and why:
   active constraints' normals makes it positive definite without changing the step on
   that active set (Newton's convergence kept); only where that fails are the
   eigenvalues reflected.
-* **Exact condensing.** The model ``x[k+1] = x[k] + dt u[k]``, ``v[k+1] = u[k]`` is linear,
-  so the states are affine in the commands ``U``: the multiple-shooting NLP is solved in
-  ``U`` alone (``N nx`` variables), the gap rows holding exactly. For N = 10 the dense QP
-  is as cheap as a Riccati-based one, and it is solved by a dual active-set method
-  (``nmpc.backends.qp``: DAQP on the rows that may bind).
+* **The QP by the horizon's length.** Short horizons: the model ``x[k+1] = x[k] + dt u[k]``
+  is linear, so the NLP is condensed exactly onto the commands (``condensed``: a dense
+  QP, DAQP on the rows that may bind). Long horizons: every stage keeps its variables
+  and the sparse OCP-structured QP is solved by HPIPM's Riccati-based interior point
+  (``multiple_shooting``: stage Functions mapped over the horizon, so generated code,
+  build time and memory do not grow with N). ``qpsol="auto"`` picks the first up to
+  ``condense_max_horizon`` steps.
 * **Hierarchy rows** ``c_r = ||R_r||^2 <= b_r`` (stage-wise, ``Hierarchical``) are
   linearised, and their curvature enters the Hessian as ``2 lam_r J_r^T J_r`` (the
   Gauss-Newton part of the constraint's Hessian, positive semi-definite since
@@ -34,7 +36,8 @@ How it is built, and why:
   from the shifted previous solution; successful if the QP is. Iterated, it converges to
   the same optimum.
 
-The model Functions are compiled to C once and cached (``nmpc.backends.codegen``).
+The model Functions are compiled to C once and cached (``nmpc.backends.codegen``). The
+loop below works on either model through ``qp_model.QpModel``.
 """
 
 from __future__ import annotations
@@ -44,16 +47,18 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar
 
-import casadi as ca
 import numpy as np
 
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult
-from aeromanip.nmpc.backends.codegen import Buffered, compiled_all, limit_blas_threads
-from aeromanip.nmpc.backends.kkt import complementarity, convexified, l1, violation
+from aeromanip.nmpc.backends.codegen import limit_blas_threads
+from aeromanip.nmpc.backends.condensed import CondensedModel
+from aeromanip.nmpc.backends.kkt import l1, violation
+from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel, check_hpipm_options
 from aeromanip.nmpc.backends.qp import SOLVERS as QP_SOLVERS
 from aeromanip.nmpc.backends.qp import DenseQp
-from aeromanip.nmpc.transcription import Transcription, shift_map
+from aeromanip.nmpc.backends.qp_model import Linearization, QpModel
+from aeromanip.nmpc.transcription import Transcription
 
 DEFAULTS: dict[str, Any] = {
     "max_iter": 50,  # QPs per solve
@@ -70,7 +75,10 @@ DEFAULTS: dict[str, Any] = {
     # exact from the first shortened step or the 7th iteration of a solve on
     "hessian": "auto",
     "regularization": 1e-9,  # added to the Hessian's diagonal
-    "qpsol": "daqp",  # dense QP solver: "daqp" (dual active set) or "qpoases"
+    # "auto": "daqp" up to condense_max_horizon steps, else "hpipm"; "daqp" or "qpoases":
+    # the condensed dense QP; "hpipm": the sparse multiple-shooting QP
+    "qpsol": "auto",
+    "condense_max_horizon": 12,  # steps
     "qpsol_options": {},  # extra options of the QP solver
     "screen": 0.1,  # QP rows farther than this from their bounds are left out at first
     "blas_threads": 1,  # OpenBLAS threads in this process (None: leave as is)
@@ -110,7 +118,8 @@ OPTION_CHECKS: dict[str, Callable[[Any], str]] = {
     "codegen": lambda v: "" if isinstance(v, bool) else "true or false",
     "hessian": _one_of(HESSIANS),
     "regularization": _number(positive=False),
-    "qpsol": _one_of(tuple(QP_SOLVERS)),
+    "qpsol": _one_of(("auto", *QP_SOLVERS, "hpipm")),
+    "condense_max_horizon": _int_at_least(1),
     "qpsol_options": lambda v: "" if isinstance(v, Mapping) else "a table",
     "screen": _number(positive=False),
     "blas_threads": lambda v: "" if v is None or _int_at_least(1)(v) == "" else "an integer >= 1",
@@ -125,7 +134,8 @@ PENALTY_FLOOR = 1e-8  # and by at least this
 
 @BACKENDS.register("sqp")
 class SqpBackend(Backend):
-    """SQP with Gauss-Newton (or exact) Hessians and exact condensing (module docstring).
+    """SQP with Gauss-Newton (or exact) Hessians on a condensed or a multiple-shooting QP
+    model (module docstring).
 
     Args:
         transcription: the NLP (its layout is kept for inputs and results).
@@ -139,14 +149,21 @@ class SqpBackend(Backend):
         self, transcription: Transcription, options: Mapping[str, Any] | None = None
     ) -> None:
         self.opts = self.checked_options(options)
-        self.tr = tr = transcription
-        self.nU = tr.N * tr.nx
-        U, p = ca.SX.sym("U", self.nU), ca.SX.sym("p", tr.p.numel())
-        R, gc, Rh = self._condensed(U, p)
-        self._compile(U, p, R, gc, Rh)
-        self._qp_setup()
+        self.tr = transcription
+        self.qpsol = self.pick_qp(self.opts, transcription.N)
+        if self.qpsol == "hpipm":
+            self.model: QpModel = MultipleShootingModel(transcription, self.opts)
+        else:
+            self.model = CondensedModel(transcription, {**self.opts, "qpsol": self.qpsol})
         if self.opts["blas_threads"] is not None:
             limit_blas_threads(int(self.opts["blas_threads"]))
+
+    @staticmethod
+    def pick_qp(opts: Mapping[str, Any], horizon: int) -> str:
+        """The QP solver ``qpsol`` names, or for ``"auto"`` the one for ``horizon``."""
+        if opts["qpsol"] != "auto":
+            return str(opts["qpsol"])
+        return "daqp" if horizon <= opts["condense_max_horizon"] else "hpipm"
 
     @classmethod
     def checked_options(cls, options: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -166,7 +183,11 @@ class SqpBackend(Backend):
             allowed = check(opts[key])
             if allowed:
                 raise ConfigError(f"solver_options.{key}: {opts[key]!r} is not {allowed}")
-        DenseQp.check_options(opts["qpsol"], opts["qpsol_options"])
+        for qpsol in {cls.pick_qp(opts, 1), cls.pick_qp(opts, 10**6)}:
+            if qpsol == "hpipm":
+                check_hpipm_options(opts["qpsol_options"])
+            else:
+                DenseQp.check_options(qpsol, opts["qpsol_options"])
         return opts
 
     @classmethod
@@ -174,108 +195,6 @@ class SqpBackend(Backend):
         """See ``checked_options``."""
         cls.checked_options(options)
 
-    def _condensed(self, U: ca.SX, p: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX]:
-        """The NLP in the commands ``U`` alone: objective residuals ``R``, the rows that
-        may bind ``gc`` (path and hierarchy rows, then the state bounds as rows of ``U``)
-        and the hierarchy rows' residuals ``Rh``. Sets the index maps between layouts."""
-        tr, N, nx = self.tr, self.tr.N, self.tr.nx
-        x, v, parts = p[:nx], p[nx : 2 * nx], []
-        for k in range(N + 1):  # the model is linear: the states are affine in U
-            parts += [x, v]
-            if k < N:
-                uk = U[k * nx : (k + 1) * nx]
-                parts.append(uk)
-                x, v = x + tr.problem.dt * uk, uk
-        wU = ca.vertcat(*parts)
-        hier = [r for _, r in tr.hier_residuals]
-        ms = ca.Function("ms", [tr.w, tr.p], [tr.residuals, tr.g, ca.vertcat(*hier)])
-        # dense: a zero weight makes a residual entry a structural zero, and the buffers
-        # hold nonzeros only
-        R, g, Rh = (ca.densify(e) for e in ms(wU, p))
-        gap = set(tr.gap_rows)
-        self.keep = np.array([i for i in range(tr.g.numel()) if i not in gap], dtype=int)
-        # state bounds become linear rows of U (stage 0 is the measured state: not bounded)
-        lbw, ubw, s = tr.lbw, tr.ubw, tr.stride
-        sidx = [
-            k * s + i
-            for k in range(1, N + 1)
-            for i in range(nx)
-            if np.isfinite(lbw[k * s + i]) or np.isfinite(ubw[k * s + i])
-        ]
-        self.state_idx = np.array(sidx, dtype=int)
-        self.u_idx = np.array([k * s + tr.nz + i for k in range(N) for i in range(nx)], dtype=int)
-        self.nk = len(self.keep)
-        self.lb_state, self.ub_state = lbw[self.state_idx], ubw[self.state_idx]
-        return R, ca.vertcat(g[self.keep.tolist()], wU[sidx]), Rh
-
-    def _compile(self, U: ca.SX, p: ca.SX, R: ca.SX, gc: ca.SX, Rh: ca.SX) -> None:
-        """Build the model Functions (data, merit, exact Hessian) and compile them to C."""
-        tr = self.tr
-        tag = f"{len(tr.hier_residuals)}h{tr.N}x{tr.nx}"
-        J, A, Jh = (ca.densify(ca.jacobian(e, U)) for e in (R, gc, Rh))
-        with_exact = self.opts["hessian"] != "gauss-newton" and not self.opts["rti"]
-        data = ca.Function(f"aeromanip_sqp_data_{tag}", [U, p], [R, J, gc, A, Jh])
-        merit = ca.Function(f"aeromanip_sqp_merit_{tag}", [U, p], [ca.sumsqr(R), gc])
-        fs = [data, merit, tr.stage_costs]
-        if with_exact:
-            Hf = ca.densify(ca.hessian(ca.sumsqr(R), U)[0])
-            fs.append(ca.Function(f"aeromanip_sqp_hess_{tag}", [U, p], [Hf]))
-        fs = compiled_all(fs, self.opts["codegen"])  # built in parallel, once, cached
-        self.data, self.merit = Buffered(fs[0]), Buffered(fs[1])
-        tr.use_stage_costs(fs[2])
-        self.hess = Buffered(fs[3]) if with_exact else None
-        self.nr, self.nc, self.nh = R.numel(), gc.numel(), Rh.numel()
-
-    def _qp_setup(self) -> None:
-        """Command bounds, the rows that bind by design, shift maps and the QP solver."""
-        tr, nx, nU = self.tr, self.tr.nx, self.nU
-        self.lbU = np.tile(tr.problem.bounds.u_lower, tr.N)
-        self.ubU = np.tile(tr.problem.bounds.u_upper, tr.N)
-        row_of = {r: i for i, r in enumerate(self.keep)}
-        self.hier_elem_row = np.concatenate(
-            [np.full(r.numel(), row_of[row], dtype=int) for row, r in tr.hier_residuals]
-            or [np.zeros(0, dtype=int)]
-        )
-        always = np.zeros(self.nc, dtype=bool)
-        always[[row_of[r] for rows in tr.hier_rows for r in rows]] = True  # bind by design
-        # which row predicts each one when the horizon moves a step on (as the NLP's)
-        shift_rows = shift_map(
-            [(tr.g_kind[r], tr.g_stage[r]) for r in self.keep]
-            + [(f"state{i % tr.stride}", i // tr.stride) for i in self.state_idx]
-        )
-        self.shift_vars = np.arange(nU) + nx
-        self.shift_vars[self.shift_vars >= nU] -= nx  # the last command predicts itself
-        o = self.opts
-        self.qp = DenseQp(
-            nU, self.nc, o["qpsol"], o["qpsol_options"], o["screen"], always, shift_rows
-        )
-
-    # -- layout conversions --------------------------------------------------------------
-    def _to_w(self, Uv: np.ndarray, p: np.ndarray) -> np.ndarray:
-        tr, nx, N = self.tr, self.tr.nx, self.tr.N
-        Um = Uv.reshape(N, nx)
-        X = np.vstack([p[:nx], p[:nx] + tr.problem.dt * np.cumsum(Um, axis=0)])
-        return tr.pack(X, Um, p[nx : 2 * nx])
-
-    def _duals_out(self, lam_c: np.ndarray, lam_u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        lam_g = np.zeros(self.tr.g.numel())
-        lam_g[self.keep] = lam_c[: self.nk]
-        lam_x = np.zeros(self.tr.w.numel())
-        lam_x[self.state_idx] = lam_c[self.nk :]
-        lam_x[self.u_idx] = lam_u
-        return lam_g, lam_x
-
-    def _duals_in(
-        self, lam_g: np.ndarray | None, lam_x: np.ndarray | None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        lam_c, lam_u = np.zeros(self.nc), np.zeros(self.nU)
-        if lam_g is not None and lam_x is not None:
-            lam_c[: self.nk] = np.asarray(lam_g)[self.keep]
-            lam_c[self.nk :] = np.asarray(lam_x)[self.state_idx]
-            lam_u[:] = np.asarray(lam_x)[self.u_idx]
-        return lam_c, lam_u
-
-    # -- the solve ----------------------------------------------------------------------
     def solve(
         self,
         w0: np.ndarray,
@@ -286,34 +205,26 @@ class SqpBackend(Backend):
         lam_x0: np.ndarray | None = None,
         shift: bool = True,
     ) -> NlpResult:
-        """Solve from the primal guess ``w0`` (its commands are used) and multipliers: the
-        last control step's, moved a stage on here (``shift=False``: this step's). The
-        multipliers returned leave the model rows at 0 (condensed away)."""
+        """Solve from the primal guess ``w0`` and multipliers: the last control step's,
+        moved a stage on here (``shift=False``: this step's)."""
         t0 = time.perf_counter()
-        o = self.opts
-        Uv = np.clip(np.asarray(w0, dtype=float)[self.u_idx], self.lbU, self.ubU)
-        lbc = np.concatenate([lbg[self.keep], self.lb_state])
-        ubc = np.concatenate([ubg[self.keep], self.ub_state])
-        lam_c, lam_u = self._initial_duals(lam_g0, lam_x0, shift)
+        o, model = self.opts, self.model
+        v, lam_c, lam_v = model.start(w0, lbg, ubg, lam_g0, lam_x0, shift)
         p = np.asarray(p, dtype=float)
-        reg = o["regularization"]
         mu, it, status, ok, f = 0.0, 0, "", False, np.nan
         exact = o["hessian"] == "exact"
         max_iter = 1 if o["rti"] else int(o["max_iter"])
         acceptable = 0  # iterations in a row at the acceptable level
         while True:
-            R, J, gc, A, Jh = self.data(Uv, p)
-            J = J.reshape(self.nr, self.nU, order="F")
-            A = A.reshape(self.nc, self.nU, order="F")
-            f = float(R @ R)
-            grad = 2.0 * (J.T @ R)
+            lin = model.linearize(v, p)
+            f = lin.f
             if not np.isfinite(f):  # NaN in derivatives shows in the QP's solution
                 status = "Invalid_Number_Detected"
                 break
-            viol = 0.0 if o["rti"] else violation(gc, lbc, ubc)
+            viol = 0.0 if o["rti"] else violation(lin.c, lin.lbc, lin.ubc)
             kkt = np.inf  # the larger of stationarity and complementarity
             if not o["rti"] and (it > 0 or lam_g0 is not None) and viol <= o["constr_viol_tol"]:
-                kkt = self._kkt_error(Uv, gc, lbc, ubc, grad, A, lam_c, lam_u)
+                kkt = model.kkt_error(v, lin, lam_c, lam_v)
                 if kkt <= o["tol"] and viol <= o["tol"]:
                     ok, status = True, "Solve_Succeeded"
                     break
@@ -324,119 +235,54 @@ class SqpBackend(Backend):
             if it >= max_iter:
                 status = "Maximum_Iterations_Exceeded"
                 break
-            Hf = self.hess(Uv, p)[0] if (exact and self.hess is not None) else None
-            H = self._hessian(J, Jh, Hf, lam_c, lam_u, A)
-            H.flat[:: self.nU + 1] += reg
-            qp = self.qp.solve(H, grad, A, lbc - gc, ubc - gc, self.lbU - Uv, self.ubU - Uv)
+            qp = model.step(v, lin, lam_c, lam_v, p, exact)
             it += 1
             if not qp.ok:
                 status = f"QP failed: {qp.status}"
                 break
-            d, lam_c, lam_u = qp.d, qp.lam_a, qp.lam_x
+            d, lam_c, lam_v = qp.d, qp.lam_a, qp.lam_x
             if o["rti"]:  # f stays the cost at the linearisation point
-                Uv = Uv + d
+                v = v + d
                 ok, status = True, "RTI step"
                 break
             mu = max(mu, PENALTY_MARGIN * np.abs(lam_c).max(initial=0.0) + PENALTY_FLOOR)
-            alpha = self._line_search(Uv, d, p, f, grad, l1(gc, lbc, ubc), mu, lbc, ubc)
-            Uv = Uv + alpha * d
-            # Gauss-Newton converges slowly where residuals are large: then go exact
+            alpha = _line_search(model, v, d, p, lin, mu)
+            v = v + alpha * d
             exact = o["hessian"] == "exact" or (
-                o["hessian"] == "auto" and (exact or alpha < 1.0 or it >= EXACT_FROM_ITERATION)
+                o["hessian"] == "auto" and _go_exact(model, exact, alpha, it)
             )
-        lam_g, lam_x = self._duals_out(lam_c, lam_u)
-        w = self._to_w(Uv, p)
+        w, lam_g, lam_x = model.result(v, p, lam_c, lam_v)
         ok = ok and bool(np.all(np.isfinite(w)))
         return NlpResult(w, lam_g, lam_x, f, ok, status, it, time.perf_counter() - t0)
 
-    def _initial_duals(
-        self, lam_g0: np.ndarray | None, lam_x0: np.ndarray | None, shift: bool
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The starting multipliers (rows, command bounds) in the condensed layout, and
-        the QP's memory of active rows: forgotten on a cold start, moved a stage on with
-        the last control step's multipliers."""
-        lam_c, lam_u = self._duals_in(lam_g0, lam_x0)
-        if lam_g0 is None:
-            self.qp.reset()
-        elif shift:
-            lam_c, lam_u = lam_c[self.qp.shift_rows], lam_u[self.shift_vars]
-            self.qp.shift()
-        return lam_c, lam_u
 
-    def _kkt_error(
-        self,
-        Uv: np.ndarray,
-        gc: np.ndarray,
-        lbc: np.ndarray,
-        ubc: np.ndarray,
-        grad: np.ndarray,
-        A: np.ndarray,
-        lam_c: np.ndarray,
-        lam_u: np.ndarray,
-    ) -> float:
-        """The larger of complementarity (rows and bounds) and stationarity."""
-        return max(
-            complementarity(gc, lbc, ubc, lam_c),
-            complementarity(Uv, self.lbU, self.ubU, lam_u),
-            float(np.abs(grad + A.T @ lam_c + lam_u).max(initial=0.0)),
-        )
+def _go_exact(model: QpModel, exact: bool, alpha: float, it: int) -> bool:
+    """``hessian="auto"``: whether the next iteration uses the exact Hessian.
 
-    def _hessian(
-        self,
-        J: np.ndarray,
-        Jh: np.ndarray,
-        Hf: np.ndarray | None,
-        lam_c: np.ndarray,
-        lam_u: np.ndarray,
-        A: np.ndarray,
-    ) -> np.ndarray:
-        """The objective's Gauss-Newton Hessian, or its exact one ``Hf`` (if given) made
-        positive definite; plus the Gauss-Newton curvature of the hierarchy rows.
+    Condensed: Gauss-Newton converges slowly where residuals are large, so go exact at
+    the first shortened step or the ``EXACT_FROM_ITERATION``-th iteration (its Hessian is
+    convexified on the reduced problem). Multiple shooting: the exact stage blocks may be
+    indefinite, so only near a solution: after a full step, and back to Gauss-Newton
+    after a shortened one.
+    """
+    if isinstance(model, MultipleShootingModel):
+        return alpha == 1.0 and it >= 2
+    return exact or alpha < 1.0 or it >= EXACT_FROM_ITERATION
 
-        At a constrained minimum the full-space Hessian may be indefinite along directions
-        the active constraints block. Adding ``rho C'C`` (``C``: the active rows and
-        bounds) makes it positive definite without changing the QP's step on that active
-        set, so Newton's fast convergence is kept; only where that fails (negative
-        curvature on the constraints' null space too) are the eigenvalues reflected.
-        """
-        Hh = None
-        if self.nh:
-            lam_h = np.maximum(lam_c[self.hier_elem_row], 0.0)
-            Jw = Jh.reshape(self.nh, self.nU, order="F") * np.sqrt(lam_h)[:, None]
-            Hh = 2.0 * (Jw.T @ Jw)
-        if Hf is not None:
-            H = Hf.reshape(self.nU, self.nU, order="F").copy()
-            if Hh is not None:
-                H += Hh
-            return convexified(H, A[lam_c != 0.0], np.flatnonzero(lam_u != 0.0))
-        H = J.T @ J
-        H *= 2.0
-        if Hh is not None:
-            H += Hh
-        return H
 
-    def _line_search(
-        self,
-        Uv: np.ndarray,
-        d: np.ndarray,
-        p: np.ndarray,
-        f: float,
-        grad: np.ndarray,
-        viol: float,
-        mu: float,
-        lbc: np.ndarray,
-        ubc: np.ndarray,
-    ) -> float:
-        """Armijo backtracking on the l1 merit ``f + mu * sum(violations)``: the step length."""
-        phi0 = f + mu * viol
-        slope = float(grad @ d) - mu * viol
-        alpha = 1.0
-        while True:
-            f1, gc1 = self.merit(Uv + alpha * d, p)
-            phi = float(f1[0]) + mu * l1(gc1, lbc, ubc)
-            if phi <= phi0 + ARMIJO * alpha * min(slope, 0.0) or alpha < MIN_STEP:
-                return alpha
-            alpha *= BACKTRACK
+def _line_search(
+    model: QpModel, v: np.ndarray, d: np.ndarray, p: np.ndarray, lin: Linearization, mu: float
+) -> float:
+    """Armijo backtracking on the l1 merit ``f + mu * sum(violations)``: the step length."""
+    viol = l1(lin.c, lin.lbc, lin.ubc)
+    phi0 = lin.f + mu * viol
+    slope = float(lin.grad @ d) - mu * viol
+    alpha = 1.0
+    while True:
+        f1, viol1 = model.merit(v + alpha * d, p)
+        if f1 + mu * viol1 <= phi0 + ARMIJO * alpha * min(slope, 0.0) or alpha < MIN_STEP:
+            return alpha
+        alpha *= BACKTRACK
 
 
 @BACKENDS.register("sqp-rti")

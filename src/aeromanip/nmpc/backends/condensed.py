@@ -1,0 +1,231 @@
+"""The SQP's condensed model: the NLP in the commands ``U`` alone, a dense QP (DAQP).
+
+The model ``x[k+1] = x[k] + dt u[k]``, ``v[k+1] = u[k]`` is linear, so the states are
+affine in the commands: the multiple-shooting NLP is solved in ``U`` (``N nx``
+variables), the gap rows holding exactly. The state bounds become linear rows of ``U``.
+The dense residuals, rows and their Jacobians in ``U`` are one compiled Function: fast
+for short horizons, but its code grows like ``N^2`` (use ``MultipleShootingModel``
+beyond a dozen steps). The QP is solved by a dual active-set method on the rows that may
+bind (``nmpc.backends.qp``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from aeromanip.nmpc.backends.codegen import Buffered, compiled_all
+from aeromanip.nmpc.backends.kkt import complementarity, convexified, l1
+from aeromanip.nmpc.backends.qp import DenseQp, QpResult
+from aeromanip.nmpc.backends.qp_model import Linearization
+from aeromanip.nmpc.transcription import Transcription, shift_map
+
+
+class CondensedModel:
+    """The condensed QP model of a transcription (module docstring; ``qp_model.QpModel``).
+
+    Args:
+        tr: the NLP.
+        opts: the SQP's options (``codegen``, ``hessian``, ``rti``, ``regularization``,
+            ``qpsol``, ``qpsol_options``, ``screen``).
+    """
+
+    def __init__(self, tr: Transcription, opts: dict[str, Any]) -> None:
+        self.tr, self.opts = tr, opts
+        self.nU = tr.N * tr.nx
+        U, p = ca.SX.sym("U", self.nU), ca.SX.sym("p", tr.p.numel())
+        R, gc, Rh = self._condensed(U, p)
+        self._compile(U, p, R, gc, Rh)
+        self._qp_setup()
+
+    # -- building ------------------------------------------------------------------------
+    def _condensed(self, U: ca.SX, p: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX]:
+        """Objective residuals ``R``, the rows that may bind ``gc`` (path and hierarchy
+        rows, then the state bounds as rows of ``U``) and the hierarchy rows' residuals
+        ``Rh``, as expressions of ``U``. Sets the index maps between layouts."""
+        tr, N, nx = self.tr, self.tr.N, self.tr.nx
+        x, v, parts = p[:nx], p[nx : 2 * nx], []
+        for k in range(N + 1):  # the model is linear: the states are affine in U
+            parts += [x, v]
+            if k < N:
+                uk = U[k * nx : (k + 1) * nx]
+                parts.append(uk)
+                x, v = x + tr.problem.dt * uk, uk
+        wU = ca.vertcat(*parts)
+        hier = [r for _, r in tr.hier_residuals]
+        ms = ca.Function("ms", [tr.w, tr.p], [tr.residuals, tr.g, ca.vertcat(*hier)])
+        # dense: a zero weight makes a residual entry a structural zero, and the buffers
+        # hold nonzeros only
+        R, g, Rh = (ca.densify(e) for e in ms(wU, p))
+        gap = set(tr.gap_rows)
+        self.keep = np.array([i for i in range(tr.g.numel()) if i not in gap], dtype=int)
+        # state bounds become linear rows of U (stage 0 is the measured state: not bounded)
+        lbw, ubw, s = tr.lbw, tr.ubw, tr.stride
+        sidx = [
+            k * s + i
+            for k in range(1, N + 1)
+            for i in range(nx)
+            if np.isfinite(lbw[k * s + i]) or np.isfinite(ubw[k * s + i])
+        ]
+        self.state_idx = np.array(sidx, dtype=int)
+        self.u_idx = np.array([k * s + tr.nz + i for k in range(N) for i in range(nx)], dtype=int)
+        self.nk = len(self.keep)
+        self.lb_state, self.ub_state = lbw[self.state_idx], ubw[self.state_idx]
+        return R, ca.vertcat(g[self.keep.tolist()], wU[sidx]), Rh
+
+    def _compile(self, U: ca.SX, p: ca.SX, R: ca.SX, gc: ca.SX, Rh: ca.SX) -> None:
+        """Build the model Functions (data, merit, exact Hessian) and compile them to C."""
+        tr = self.tr
+        tag = f"{len(tr.hier_residuals)}h{tr.N}x{tr.nx}"
+        J, A, Jh = (ca.densify(ca.jacobian(e, U)) for e in (R, gc, Rh))
+        with_exact = self.opts["hessian"] != "gauss-newton" and not self.opts["rti"]
+        data = ca.Function(f"aeromanip_sqp_data_{tag}", [U, p], [R, J, gc, A, Jh])
+        merit = ca.Function(f"aeromanip_sqp_merit_{tag}", [U, p], [ca.sumsqr(R), gc])
+        fs = [data, merit, tr.stage_costs]
+        if with_exact:
+            Hf = ca.densify(ca.hessian(ca.sumsqr(R), U)[0])
+            fs.append(ca.Function(f"aeromanip_sqp_hess_{tag}", [U, p], [Hf]))
+        fs = compiled_all(fs, self.opts["codegen"])  # built in parallel, once, cached
+        self.data, self.merit_f = Buffered(fs[0]), Buffered(fs[1])
+        tr.use_stage_costs(fs[2])
+        self.hess = Buffered(fs[3]) if with_exact else None
+        self.nr, self.nc, self.nh = R.numel(), gc.numel(), Rh.numel()
+
+    def _qp_setup(self) -> None:
+        """Command bounds, the rows that bind by design, shift maps and the QP solver."""
+        tr, nx, nU = self.tr, self.tr.nx, self.nU
+        self.lbU = np.tile(tr.problem.bounds.u_lower, tr.N)
+        self.ubU = np.tile(tr.problem.bounds.u_upper, tr.N)
+        row_of = {r: i for i, r in enumerate(self.keep)}
+        self.hier_elem_row = np.concatenate(
+            [np.full(r.numel(), row_of[row], dtype=int) for row, r in tr.hier_residuals]
+            or [np.zeros(0, dtype=int)]
+        )
+        always = np.zeros(self.nc, dtype=bool)
+        always[[row_of[r] for rows in tr.hier_rows for r in rows]] = True  # bind by design
+        # which row predicts each one when the horizon moves a step on (as the NLP's)
+        shift_rows = shift_map(
+            [(tr.g_kind[r], tr.g_stage[r]) for r in self.keep]
+            + [(f"state{i % tr.stride}", i // tr.stride) for i in self.state_idx]
+        )
+        self.shift_vars = np.arange(nU) + nx
+        self.shift_vars[self.shift_vars >= nU] -= nx  # the last command predicts itself
+        o = self.opts
+        self.qp = DenseQp(
+            nU, self.nc, o["qpsol"], o["qpsol_options"], o["screen"], always, shift_rows
+        )
+
+    # -- the QpModel interface -------------------------------------------------------------
+    def start(
+        self,
+        w0: np.ndarray,
+        lbg: np.ndarray,
+        ubg: np.ndarray,
+        lam_g0: np.ndarray | None,
+        lam_x0: np.ndarray | None,
+        shift: bool,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The commands of ``w0`` (clipped to their bounds), the row bounds of this
+        solve, and the starting multipliers with the QP's memory of active rows:
+        forgotten on a cold start, moved a stage on with the last step's multipliers."""
+        self.lbc = np.concatenate([lbg[self.keep], self.lb_state])
+        self.ubc = np.concatenate([ubg[self.keep], self.ub_state])
+        lam_c, lam_u = np.zeros(self.nc), np.zeros(self.nU)
+        if lam_g0 is not None and lam_x0 is not None:
+            lam_c[: self.nk] = np.asarray(lam_g0)[self.keep]
+            lam_c[self.nk :] = np.asarray(lam_x0)[self.state_idx]
+            lam_u[:] = np.asarray(lam_x0)[self.u_idx]
+        if lam_g0 is None:
+            self.qp.reset()
+        elif shift:
+            lam_c, lam_u = lam_c[self.qp.shift_rows], lam_u[self.shift_vars]
+            self.qp.shift()
+        Uv = np.clip(np.asarray(w0, dtype=float)[self.u_idx], self.lbU, self.ubU)
+        return Uv, lam_c, lam_u
+
+    def linearize(self, v: np.ndarray, p: np.ndarray) -> Linearization:
+        """Residuals, rows and their (dense) Jacobians in ``U``."""
+        R, J, gc, A, Jh = self.data(v, p)
+        J = J.reshape(self.nr, self.nU, order="F")
+        A = A.reshape(self.nc, self.nU, order="F")
+        return Linearization(float(R @ R), 2.0 * (J.T @ R), gc, self.lbc, self.ubc, (J, A, Jh))
+
+    def kkt_error(
+        self, v: np.ndarray, lin: Linearization, lam_c: np.ndarray, lam_v: np.ndarray
+    ) -> float:
+        """The larger of complementarity (rows and bounds) and stationarity."""
+        A = lin.data[1]
+        return max(
+            complementarity(lin.c, lin.lbc, lin.ubc, lam_c),
+            complementarity(v, self.lbU, self.ubU, lam_v),
+            float(np.abs(lin.grad + A.T @ lam_c + lam_v).max(initial=0.0)),
+        )
+
+    def step(
+        self,
+        v: np.ndarray,
+        lin: Linearization,
+        lam_c: np.ndarray,
+        lam_v: np.ndarray,
+        p: np.ndarray,
+        exact: bool,
+    ) -> QpResult:
+        """The dense QP on the rows that may bind."""
+        J, A, Jh = lin.data
+        Hf = self.hess(v, p)[0] if (exact and self.hess is not None) else None
+        H = self._hessian(J, Jh, Hf, lam_c, lam_v, A)
+        H.flat[:: self.nU + 1] += self.opts["regularization"]
+        gc = lin.c
+        return self.qp.solve(H, lin.grad, A, lin.lbc - gc, lin.ubc - gc, self.lbU - v, self.ubU - v)
+
+    def _hessian(
+        self,
+        J: np.ndarray,
+        Jh: np.ndarray,
+        Hf: np.ndarray | None,
+        lam_c: np.ndarray,
+        lam_u: np.ndarray,
+        A: np.ndarray,
+    ) -> np.ndarray:
+        """The objective's Gauss-Newton Hessian, or its exact one ``Hf`` (if given) made
+        positive definite (``kkt.convexified``: a penalty on the active rows' normals,
+        which keeps the step on that active set); plus the Gauss-Newton curvature of the
+        hierarchy's cost rows."""
+        Hh = None
+        if self.nh:
+            lam_h = np.maximum(lam_c[self.hier_elem_row], 0.0)
+            Jw = Jh.reshape(self.nh, self.nU, order="F") * np.sqrt(lam_h)[:, None]
+            Hh = 2.0 * (Jw.T @ Jw)
+        if Hf is not None:
+            H = Hf.reshape(self.nU, self.nU, order="F").copy()
+            if Hh is not None:
+                H += Hh
+            return convexified(H, A[lam_c != 0.0], np.flatnonzero(lam_u != 0.0))
+        H = J.T @ J
+        H *= 2.0
+        if Hh is not None:
+            H += Hh
+        return H
+
+    def merit(self, v: np.ndarray, p: np.ndarray) -> tuple[float, float]:
+        """Cost and l1 row violation at ``v``."""
+        f, gc = self.merit_f(v, p)
+        return float(f[0]), l1(gc, self.lbc, self.ubc)
+
+    def result(
+        self, v: np.ndarray, p: np.ndarray, lam_c: np.ndarray, lam_v: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The NLP's variables (states rolled out from the commands) and multipliers (the
+        model rows' stay 0: condensed away)."""
+        tr, nx, N = self.tr, self.tr.nx, self.tr.N
+        Um = v.reshape(N, nx)
+        X = np.vstack([p[:nx], p[:nx] + tr.problem.dt * np.cumsum(Um, axis=0)])
+        w = tr.pack(X, Um, p[nx : 2 * nx])
+        lam_g = np.zeros(tr.g.numel())
+        lam_g[self.keep] = lam_c[: self.nk]
+        lam_x = np.zeros(tr.w.numel())
+        lam_x[self.state_idx] = lam_c[self.nk :]
+        lam_x[self.u_idx] = lam_v
+        return w, lam_g, lam_x

@@ -1,0 +1,416 @@
+"""The SQP's multiple-shooting model: every stage's variables, a sparse OCP QP (HPIPM).
+
+The transcription's variables ``[z0, u0, z1, u1, ..., z_N]`` and rows (per stage: the
+gap rows first, then the path and hierarchy rows) are already in the order HPIPM's
+Riccati-based interior point needs. Per stage, compiled Functions mapped over the
+horizon give the weighted residuals and rows with their Jacobians in the stage's
+variables; the Gauss-Newton Hessian is then block diagonal (one block per stage) and
+the gap rows are constant. So generated code, build time and memory do not grow with
+the horizon, and a QP costs ``O(N)``. The exact Hessian (``hessian="exact"``/``"auto"``)
+is per stage too; its blocks may be indefinite (HPIPM's Riccati recursion only needs the
+problem convex on the null space of the dynamics), and where the QP fails with it or
+its step does not descend, the step is taken with the Gauss-Newton Hessian instead.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from aeromanip.errors import ConfigError
+from aeromanip.nmpc.backends.base import casadi_message
+from aeromanip.nmpc.backends.codegen import Buffered, compiled_all, quiet_stdout
+from aeromanip.nmpc.backends.kkt import complementarity, l1
+from aeromanip.nmpc.backends.qp import QpResult
+from aeromanip.nmpc.backends.qp_model import Linearization
+from aeromanip.nmpc.transcription import COUPLING, Transcription
+
+HPIPM_OPTIONS: dict[str, Any] = {
+    "hpipm": {
+        "mode": "robust",
+        "iter_max": 100,
+        **dict.fromkeys(("res_g_max", "res_b_max", "res_d_max", "res_m_max"), 1e-10),
+    }
+}
+QP_FEASIBILITY = 1e-6  # a QP step keeps its rows and bounds to this (relative to 1 + |d|)
+MAX_STEP = 1e3  # [m, rad, m/s, rad/s] a longer step comes from an indefinite, unbounded QP
+
+
+def check_hpipm_options(options: dict[str, Any]) -> None:
+    """HPIPM takes ``options`` (tried on a one-step OCP QP)."""
+    opts = {"error_on_fail": False, "print_time": False, **HPIPM_OPTIONS, **options}
+    H = ca.DM.eye(3)
+    A = ca.DM([[-1.0, -1.0, 1.0]])  # x1 = x0 + u0
+    try:
+        with quiet_stdout():
+            qp = ca.conic("aeromanip_check", "hpipm", {"h": H.sparsity(), "a": A.sparsity()}, opts)
+            qp(h=H, g=0.0, a=A, lba=0.0, uba=0.0, lbx=-1.0, ubx=1.0)
+    except RuntimeError as e:
+        raise ConfigError(
+            f"solver_options.qpsol_options: hpipm rejects them: {casadi_message(e)}"
+        ) from None
+
+
+class MultipleShootingModel:
+    """The multiple-shooting QP model of a transcription (module docstring).
+
+    Args:
+        tr: the NLP (mode ``"total"`` couples every stage: not OCP-structured).
+        opts: the SQP's options (``codegen``, ``hessian``, ``rti``, ``regularization``,
+            ``qpsol_options``).
+    """
+
+    def __init__(self, tr: Transcription, opts: dict[str, Any]) -> None:
+        if COUPLING in tr.g_stage:
+            raise ConfigError(
+                "solver_options.qpsol: hpipm needs stage-wise rows; hierarchy mode 'total' "
+                "couples every stage (use qpsol = 'daqp' or another mode)"
+            )
+        self.tr, self.opts = tr, opts
+        self.N, self.nx, self.nz = tr.N, tr.nx, tr.nz
+        self.ns = tr.stride  # variables of a stage: z (2 nx) and u (nx)
+        self.nw, self.ng = tr.w.numel(), tr.g.numel()
+        self._rows()
+        self._functions()
+        self._pattern()
+        self.lbw0, self.ubw0 = tr.lbw.copy(), tr.ubw.copy()
+
+    # -- building ------------------------------------------------------------------------
+    def _rows(self) -> None:
+        """Per stage, its rows of ``g`` other than the gap rows (in order)."""
+        kind, stage = np.asarray(self.tr.g_kind), np.asarray(self.tr.g_stage)
+        self.stage_rows = [
+            np.flatnonzero((stage == k) & (kind != "gap")) for k in range(self.N + 1)
+        ]
+        self.gap_rows = np.asarray(self.tr.gap_rows, dtype=int)
+
+    def _functions(self) -> None:
+        """Stage Functions (residuals, rows, Jacobians; merit; exact Hessian), mapped over
+        stages 0..N-1, and their terminal twins; compiled once."""
+        tr, sm, nx = self.tr, self.tr.stage_model, self.nx
+        z, u = ca.SX.sym("z", self.nz), ca.SX.sym("u", nx)
+        pk = ca.SX.sym("pk", tr.problem.param_size)
+        parts = {}
+        for name, args, s in (("stage", [z, u, pk], ca.vertcat(z, u)), ("terminal", [z, pk], z)):
+            cost = sm.cost if name == "stage" else sm.terminal_cost
+            res = (sm.residuals if name == "stage" else sm.terminal_residuals)(*args)
+            r = ca.densify(res[0] if isinstance(res, tuple | list) else res)
+            parts[name] = (args, s, r, ca.densify(self._stage_expr(cost(*args), res)))
+        n_lam = max(parts["stage"][3].numel(), parts["terminal"][3].numel(), 1)
+        lam = ca.SX.sym("lam", n_lam)
+        with_exact = self.opts["hessian"] != "gauss-newton" and not self.opts["rti"]
+        fs: dict[str, ca.Function] = {}
+        for name, (args, s, r, c) in parts.items():
+            Jr, Jc = (ca.densify(ca.jacobian(e, s)) for e in (r, c))
+            fs[name] = ca.Function(f"aeromanip_ms_{name}", args, [r, Jr, c, Jc])
+            fs[f"{name}_merit"] = ca.Function(f"aeromanip_ms_{name}_merit", args, [ca.sumsqr(r), c])
+            if with_exact:
+                L = ca.sumsqr(r) + (ca.dot(lam[: c.numel()], c) if c.numel() else 0)
+                H = ca.densify(ca.hessian(L, s)[0])
+                fs[f"{name}_hess"] = ca.Function(f"aeromanip_ms_{name}_hess", [*args, lam], [H])
+        names = list(fs)
+        funcs = [
+            f.map(f"{f.name()}_map{self.N}", "serial", self.N, [], [])
+            if n.startswith("stage")
+            else f
+            for n, f in fs.items()
+        ]
+        compiled = compiled_all([*funcs, tr.stage_costs], self.opts["codegen"])  # in parallel
+        built = dict(zip(names, compiled[:-1], strict=True))
+        tr.use_stage_costs(compiled[-1])
+        self.f_stage, self.f_merit = Buffered(built["stage"]), Buffered(built["stage_merit"])
+        self.t_stage, self.t_merit = Buffered(built["terminal"]), Buffered(built["terminal_merit"])
+        self.f_hess = Buffered(built["stage_hess"]) if with_exact else None
+        self.t_hess = Buffered(built["terminal_hess"]) if with_exact else None
+        self.n_lam = n_lam
+        self.nr, self.nrT = fs["stage"].size1_out(0), fs["terminal"].size1_out(0)
+        self.nc, self.ncT = fs["stage"].size1_out(2), fs["terminal"].size1_out(2)
+        middle = [len(r) for r in self.stage_rows[1 : self.N]]
+        if any(n != self.nc for n in middle) or self.ncT != len(self.stage_rows[self.N]):
+            raise ConfigError("solver_options.qpsol: hpipm: the stage rows do not match")
+
+    def _stage_expr(self, cost: Any, res: Any) -> ca.SX:
+        """A stage's non-gap rows as the transcription orders them: path, then per
+        higher level its cost (``stagewise``) or its residuals (``strict``/``residual``)."""
+        _, hier, path, _ = cost
+        groups = list(res[1:]) if isinstance(res, tuple | list) else []
+        stagewise = self.tr.mode == "stagewise"
+        rows = [hier[j] for j in range(hier.numel())] if stagewise else groups
+        return ca.vertcat(path, *rows)
+
+    def _pattern(self) -> None:
+        """The QP's sparsity (block-diagonal Hessian; gap rows and stage rows) and the
+        maps from per-stage blocks to the solver's nonzeros; the HPIPM solver."""
+        N, ns, nz, nx, dt = self.N, self.ns, self.nz, self.nx, self.tr.problem.dt
+        blocks = [ca.DM.ones(ns, ns)] * N + [ca.DM.ones(nz, nz)]
+        self.H_sp = ca.diagcat(*blocks).sparsity()
+        rows, cols, vals = [], [], []  # every entry of A, in our fill order
+        gap = np.zeros((nz, ns))  # d(gap)/d(z_k, u_k): -[I dt I; 0 I]
+        gap[:nx, :nx] = -np.eye(nx)
+        gap[:nx, nz:] = -dt * np.eye(nx)
+        gap[nx:, nz:] = -np.eye(nx)
+        self.gap_block = gap
+        for k in range(N):
+            r0, c0 = self.gap_rows[k * nz], k * ns
+            for i in range(nz):
+                for j in range(ns):
+                    rows.append(r0 + i), cols.append(c0 + j), vals.append(gap[i, j])
+                rows.append(r0 + i), cols.append(c0 + ns + i), vals.append(1.0)
+        self.n_gap_entries = len(vals)
+        for k in range(N + 1):
+            width = ns if k < N else nz
+            for r in self.stage_rows[k]:
+                for j in range(width):
+                    rows.append(int(r)), cols.append(k * ns + j), vals.append(0.0)
+        order = ca.DM.triplet(rows, cols, ca.DM(np.arange(1, len(vals) + 1)), self.ng, self.nw)
+        self.A_sp = order.sparsity()
+        self.a_perm = np.asarray(order.nonzeros(), dtype=int) - 1  # CCS position -> ours
+        self.a_fixed = np.array(vals[: self.n_gap_entries])
+        opts = {"error_on_fail": False, "print_time": False, **HPIPM_OPTIONS}
+        opts.update(self.opts["qpsol_options"])
+        with quiet_stdout():
+            qp = ca.conic(f"aeromanip_hpipm_{N}", "hpipm", {"h": self.H_sp, "a": self.A_sp}, opts)
+        # called through an MX Function of the nonzeros: CasADi's buffer interface would
+        # keep feeding HPIPM the first call's data
+        hn, an = ca.MX.sym("h", self.H_sp.nnz()), ca.MX.sym("a", self.A_sp.nnz())
+        vec = {n: ca.MX.sym(n, m) for n, m in (("g", self.nw), ("lba", self.ng),
+               ("uba", self.ng), ("lbx", self.nw), ("ubx", self.nw))}  # fmt: skip
+        out = qp(h=ca.MX(self.H_sp, hn), a=ca.MX(self.A_sp, an), **vec)
+        f = ca.Function(
+            f"aeromanip_hpipm_call_{N}",
+            [hn, an, *vec.values()],
+            [out["x"], out["lam_a"], out["lam_x"], out["cost"]],
+        )
+        self.qp = Buffered(f)
+        self.qp_stats = qp
+
+    # -- evaluation ----------------------------------------------------------------------
+    def _split(self, v: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The mapped Functions' inputs from ``v`` and ``p`` (stage after stage, as their
+        column-major buffers hold them): Z, U, P of stages 0..N-1; z_N, p_N."""
+        N, ns, nz = self.N, self.ns, self.nz
+        S = v[: N * ns].reshape(N, ns)
+        npk = self.tr.problem.param_size
+        P = p[2 * self.nx :]
+        return S[:, :nz].ravel(), S[:, nz:].ravel(), P[: N * npk], v[N * ns :], P[N * npk :]
+
+    def _gaps(self, v: np.ndarray) -> np.ndarray:
+        """The gap rows' values ``z[k+1] - [x[k] + dt u[k]; u[k]]`` (stage-major)."""
+        N, ns, nz, nx = self.N, self.ns, self.nz, self.nx
+        S = v[: N * ns].reshape(N, ns)
+        nxt = np.vstack([v[ns : N * ns].reshape(N - 1, ns)[:, :nz], v[N * ns :][None]])
+        pred = np.hstack([S[:, :nx] + self.tr.problem.dt * S[:, nz:], S[:, nz:]])
+        return (nxt - pred).ravel()
+
+    def _rows_values(self, c: np.ndarray, cT: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """``g(v)`` in the transcription's order from the stage rows and the gaps."""
+        g = np.empty(self.ng)
+        g[self.gap_rows] = self._gaps(v)
+        C = c.reshape(self.N, self.nc)
+        for k in range(self.N):
+            rows = self.stage_rows[k]
+            g[rows] = C[k, self.nc - len(rows) :]  # stage 0 has no path rows
+        g[self.stage_rows[self.N]] = cT
+        return g
+
+    # -- the QpModel interface -------------------------------------------------------------
+    def start(
+        self,
+        w0: np.ndarray,
+        lbg: np.ndarray,
+        ubg: np.ndarray,
+        lam_g0: np.ndarray | None,
+        lam_x0: np.ndarray | None,
+        shift: bool,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The NLP guess (inside the variable bounds, stage 0 as pinned by the NLP's
+        parameters at ``linearize``), the row bounds, the multipliers moved a stage on."""
+        self.lbg, self.ubg = np.asarray(lbg, dtype=float), np.asarray(ubg, dtype=float)
+        lam_c, lam_v = np.zeros(self.ng), np.zeros(self.nw)
+        if lam_g0 is not None and lam_x0 is not None:
+            lam_c, lam_v = np.asarray(lam_g0, dtype=float), np.asarray(lam_x0, dtype=float)
+            if shift:
+                lam_c, lam_v = lam_c[self.tr.shift_g], lam_v[self.tr.shift_w]
+        return np.asarray(w0, dtype=float).copy(), lam_c, lam_v
+
+    def _bounds(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nx = self.nx
+        return self.tr.variable_bounds(p[:nx], p[nx : 2 * nx])
+
+    def linearize(self, v: np.ndarray, p: np.ndarray) -> Linearization:
+        """Stage residuals, rows and Jacobians; cost, gradient and ``g`` assembled."""
+        lbw, ubw = self._bounds(p)
+        v = np.clip(v, lbw, ubw)  # stage 0 pinned to the measured state
+        Z, U, P, zN, pN = self._split(v, p)
+        r, Jr, c, Jc = (a.copy() for a in self.f_stage(Z, U, P))
+        rT, JrT, cT, JcT = (a.copy() for a in self.t_stage(zN, pN))
+        N, ns, nz, nr, nrT = self.N, self.ns, self.nz, self.nr, self.nrT
+        R = r.reshape(N, nr)
+        J = Jr.reshape(N, ns, nr).transpose(0, 2, 1)  # (N, nr, ns): each stage's Jacobian
+        JT = JrT.reshape(nz, nrT).T
+        grad = np.concatenate([2.0 * np.einsum("kri,kr->ki", J, R).ravel(), 2.0 * JT.T @ rT])
+        f = float(np.sum(r * r) + rT @ rT)
+        g = self._rows_values(c, cT, v)
+        data = {"v": v, "J": J, "JT": JT, "Jc": Jc, "JcT": JcT, "lbw": lbw, "ubw": ubw}
+        return Linearization(f, grad, g, self.lbg, self.ubg, data)
+
+    def _a_values(self, lin: Linearization) -> np.ndarray:
+        """The nonzeros of ``A`` in our fill order (gap constants, then stage rows)."""
+        N, ns, nz = self.N, self.ns, self.nz
+        Jc = lin.data["Jc"].reshape(N, ns, self.nc).transpose(0, 2, 1)  # (N, nc, ns)
+        parts = [self.a_fixed]
+        for k in range(N):
+            parts.append(Jc[k, self.nc - len(self.stage_rows[k]) :].ravel())
+        parts.append(lin.data["JcT"].reshape(nz, self.ncT).T.ravel())
+        return np.concatenate(parts)
+
+    def _blocks(self, lin: Linearization) -> tuple[np.ndarray, np.ndarray]:
+        """The stage rows' Jacobians: (N, nc, ns) and the terminal (ncT, nz)."""
+        N, ns, nz = self.N, self.ns, self.nz
+        Jc = lin.data["Jc"].reshape(N, ns, self.nc).transpose(0, 2, 1)
+        return Jc, lin.data["JcT"].reshape(nz, self.ncT).T
+
+    def _a_times(self, lin: Linearization, d: np.ndarray) -> np.ndarray:
+        """``A d`` (the rows' linearisation applied to a step), by blocks."""
+        N, ns, nz = self.N, self.ns, self.nz
+        Jc, JcT = self._blocks(lin)
+        S = d[: N * ns].reshape(N, ns)
+        nxt = np.vstack([d[ns : N * ns].reshape(N - 1, ns)[:, :nz], d[N * ns :][None]])
+        out = np.empty(self.ng)
+        out[self.gap_rows] = (S @ self.gap_block.T + nxt).ravel()
+        rows_d = np.einsum("kcs,ks->kc", Jc, S)
+        for k in range(N):
+            rows = self.stage_rows[k]
+            out[rows] = rows_d[k, self.nc - len(rows) :]
+        out[self.stage_rows[N]] = JcT @ d[N * ns :]
+        return out
+
+    def _at_lam(self, lin: Linearization, lam_c: np.ndarray) -> np.ndarray:
+        """``A^T lam``, by blocks."""
+        N, ns, nz = self.N, self.ns, self.nz
+        Jc, JcT = self._blocks(lin)
+        lam_gap = lam_c[self.gap_rows].reshape(N, nz)
+        lam_rows = np.zeros((N, self.nc))
+        for k in range(N):
+            rows = self.stage_rows[k]
+            lam_rows[k, self.nc - len(rows) :] = lam_c[rows]
+        out = np.zeros(self.nw)
+        S = lam_gap @ self.gap_block + np.einsum("kcs,kc->ks", Jc, lam_rows)
+        out[: N * ns] = S.ravel()
+        nxt = out[ns : N * ns].reshape(N - 1, ns)
+        nxt[:, :nz] += lam_gap[:-1]
+        out[N * ns :] += lam_gap[-1] + JcT.T @ lam_c[self.stage_rows[N]]
+        return out
+
+    def kkt_error(
+        self, v: np.ndarray, lin: Linearization, lam_c: np.ndarray, lam_v: np.ndarray
+    ) -> float:
+        """The larger of complementarity (rows and bounds) and stationarity."""
+        d = lin.data
+        stat = lin.grad + self._at_lam(lin, lam_c) + lam_v
+        free = d["lbw"] < d["ubw"]  # pinned variables carry any multiplier
+        return max(
+            complementarity(lin.c, lin.lbc, lin.ubc, lam_c),
+            complementarity(d["v"][free], d["lbw"][free], d["ubw"][free], lam_v[free]),
+            float(np.abs(stat[free]).max(initial=0.0)),
+        )
+
+    def _hessian_blocks(
+        self, lin: Linearization, lam_c: np.ndarray, p: np.ndarray, exact: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per stage: ``2 J'J`` (Gauss-Newton) or the exact Hessian of ``||r||^2 + lam'c``
+        (eigenvalues floored), plus the regularisation."""
+        d, N, ns, nz = lin.data, self.N, self.ns, self.nz
+        if exact and self.f_hess is not None and self.t_hess is not None:
+            Z, U, P, zN, pN = self._split(d["v"], p)
+            lam = self._stage_lams(lam_c)
+            Hs = self.f_hess(Z, U, P, lam[:, :N].ravel(order="F"))[0].reshape(N, ns, ns)
+            HT = self.t_hess(zN, pN, lam[:, N])[0].reshape(nz, nz)
+            Hs = 0.5 * (Hs + Hs.transpose(0, 2, 1))  # blocks may be indefinite: HPIPM only
+            HT = 0.5 * (HT + HT.T)  # needs the problem on the dynamics' null space convex
+        else:
+            Hs = 2.0 * np.einsum("kri,krj->kij", d["J"], d["J"])
+            HT = 2.0 * d["JT"].T @ d["JT"]
+        reg = self.opts["regularization"]
+        Hs[:, np.arange(ns), np.arange(ns)] += reg
+        HT[np.arange(nz), np.arange(nz)] += reg
+        return Hs, HT
+
+    def _stage_lams(self, lam_c: np.ndarray) -> np.ndarray:
+        """The stage rows' multipliers as the stage Functions' ``lam`` input (per column)."""
+        out = np.zeros((self.n_lam, self.N + 1))
+        for k in range(self.N + 1):
+            rows = self.stage_rows[k]
+            n = self.nc if k < self.N else self.ncT
+            out[n - len(rows) : n, k] = lam_c[rows]
+        return out
+
+    def step(
+        self,
+        v: np.ndarray,
+        lin: Linearization,
+        lam_c: np.ndarray,
+        lam_v: np.ndarray,
+        p: np.ndarray,
+        exact: bool,
+    ) -> QpResult:
+        """The sparse QP, solved by HPIPM (with the exact Hessian if asked and it gives a
+        descending step, else with the Gauss-Newton one)."""
+        res = self._qp(lin, *self._hessian_blocks(lin, lam_c, p, exact))
+        huge = np.abs(res.d).max(initial=0.0) > MAX_STEP  # unbounded: an indefinite QP
+        if exact and (not res.ok or huge or float(lin.grad @ res.d) > 0.0):
+            res = self._qp(lin, *self._hessian_blocks(lin, lam_c, p, False))
+        res.d += lin.data["v"] - v  # the step is taken from the clipped iterate
+        return res
+
+    def _qp(self, lin: Linearization, Hs: np.ndarray, HT: np.ndarray) -> QpResult:
+        """One QP with the given Hessian blocks."""
+        d = lin.data
+        x, lam_a, lam_x, _ = self.qp(
+            np.concatenate([Hs.transpose(0, 2, 1).ravel(), HT.T.ravel()]),
+            self._a_values(lin)[self.a_perm],
+            lin.grad,
+            lin.lbc - lin.c,
+            lin.ubc - lin.c,
+            d["lbw"] - d["v"],
+            d["ubw"] - d["v"],
+        )
+        step = x.copy()
+        ok, status = self._solved(lin, step)
+        return QpResult(step, lam_a.copy(), lam_x.copy(), ok, status)
+
+    def _solved(self, lin: Linearization, step: np.ndarray) -> tuple[bool, str]:
+        """A finite step that keeps the linearised rows and the bounds (to
+        ``QP_FEASIBILITY``): HPIPM's own status is not reachable through CasADi here."""
+        if not np.isfinite(step).all():
+            return False, "not finite"
+        d = lin.data
+        tol = QP_FEASIBILITY * (1.0 + np.abs(step).max(initial=0.0))
+        row = lin.c + self._a_times(lin, step)
+        var = d["v"] + step
+        bad = (
+            np.any(row < lin.lbc - tol)
+            or np.any(row > lin.ubc + tol)
+            or np.any(var < d["lbw"] - tol)
+            or np.any(var > d["ubw"] + tol)
+        )
+        return (False, "infeasible or not converged") if bad else (True, "")
+
+    def merit(self, v: np.ndarray, p: np.ndarray) -> tuple[float, float]:
+        """Cost and l1 row violation at ``v``."""
+        lbw, ubw = self._bounds(p)
+        v = np.clip(v, lbw, ubw)
+        Z, U, P, zN, pN = self._split(v, p)
+        f, c = (a.copy() for a in self.f_merit(Z, U, P))
+        fT, cT = self.t_merit(zN, pN)
+        g = self._rows_values(c, cT, v)
+        return float(f.sum() + fT[0]), l1(g, self.lbg, self.ubg)
+
+    def result(
+        self, v: np.ndarray, p: np.ndarray, lam_c: np.ndarray, lam_v: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The iterate is the NLP's variable vector (stage 0 pinned); multipliers as they are."""
+        lbw, ubw = self._bounds(p)
+        return np.clip(v, lbw, ubw), lam_c, lam_v
