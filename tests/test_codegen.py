@@ -45,3 +45,21 @@ def test_without_a_working_compiler_functions_run_in_process(tmp_path, monkeypat
     assert compiled(f) is f
     left = [p.name for p in tmp_path.iterdir() if p.suffix != ".lock"]
     assert not left  # no library, no leftover build directory (a lock file may stay)
+
+
+def test_a_large_build_is_announced_before_it_starts(caplog):
+    from aeromanip.nmpc.backends.codegen import LARGE_BUILD, announce_large_build
+
+    x = ca.SX.sym("x")
+    small = ca.Function("aeromanip_small", [x], [ca.sin(x)])
+    y = x
+    for _ in range(LARGE_BUILD // 2 + 1):  # two instructions per round
+        y = ca.sin(y) * x
+    large = ca.Function("aeromanip_large", [x], [y])
+    assert large.n_instructions() > LARGE_BUILD >= small.n_instructions() * 1000
+    with caplog.at_level("WARNING"):
+        assert not announce_large_build([small])
+        assert not caplog.records
+        assert announce_large_build([small, large])
+    (record,) = caplog.records
+    assert "aeromanip_large" in record.getMessage() and "hpipm" in record.getMessage()

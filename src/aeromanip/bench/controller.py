@@ -81,7 +81,7 @@ class PlainIpopt:
         """Solve from the constant-state guess; return the first command."""
         tr, N = self.tr, self.problem.horizon
         p = tr.parameters(x, self.u_prev, self.problem.stage_params(t))
-        lbw, ubw = tr.variable_bounds(x, self.u_prev)
+        lbw, ubw = tr.variable_bounds(p)
         w0 = tr.pack(np.repeat(x[None], N + 1, 0), np.zeros((N, x.size)), self.u_prev)
         out = self.solver(x0=w0, p=p, lbx=lbw, ubx=ubw, lbg=tr.lbg, ubg=tr.ubg)
         st = self.solver.stats()

@@ -11,7 +11,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from aeromanip.cli import bench, listing, plot
+from aeromanip.cli import bench, identify, listing, plot
 from aeromanip.cli import run as run_command
 from aeromanip.errors import AeromanipError
 from aeromanip.interrupts import RunInterrupted, stop_on_signals
@@ -31,7 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="aeromanip", description="NMPC for aerial manipulators (Lunni et al., ICUAS 2017)"
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    for command in (run_command, plot, listing, bench):
+    for command in (run_command, plot, listing, bench, identify):
         command.add_parser(sub)
     return parser
 

@@ -43,6 +43,7 @@ def make_controller(sc: Scenario) -> Controller:
         sc.solver_options,
         hierarchy=sc.hierarchy or None,
         time_budget_s=sc.time_budget_s,
+        latency_s=sc.latency_s,
     )
 
 
@@ -158,22 +159,30 @@ def fly(
 ) -> int:
     """Fly the closed loop of ``sc``, handing each row to ``sink``; return the steps flown.
 
-    A signal stops the loop between steps with ``RunInterrupted`` (rows already handed
-    over are the run's record). ``ctrl`` and ``sim`` default to the scenario's.
+    With a latency (``Controller.latency_s``) the command decided at ``t`` takes effect
+    at ``t + latency``: the previous one flies until then, continuing its ramp (and the
+    simulator's period means cover the new command's part of the period). A signal stops
+    the loop between steps with ``RunInterrupted`` (rows already handed over are the
+    run's record). ``ctrl`` and ``sim`` default to the scenario's.
     """
     ctrl = ctrl or make_controller(sc)
     sim = sim or make_simulator(sc)
-    dt, maker = sc.problem.dt, RowMaker(sc)
+    dt, maker, lag = sc.problem.dt, RowMaker(sc), ctrl.latency_s
+    measure_rates = ctrl.problem.model.has_response
     sim.reset(sc.x0)
+    held_u, held_start = np.zeros(sc.robot.nx), np.asarray(sc.x0, dtype=float)
     bar = Progress(sc.steps, sc.name) if progress else None
     try:
         for k in range(sc.steps):
             raise_if_interrupted()
             t = k * dt
-            cmd = ctrl.step(sim.state(), t)
+            cmd = ctrl.step(sim.state(), t, sim.rates() if measure_rates else None)
             row = maker.row(t, sim.true_state(), sim.ee_position(), cmd)
             now = {n: v for n, v in sim.extras().items() if n in sim.instant_extras}
-            sim.advance(cmd.u, cmd.plan_x, dt)
+            if lag > 0:
+                sim.advance(held_u, held_start, lag)
+            sim.advance(cmd.u, cmd.plan_x, dt - lag)
+            held_u, held_start = cmd.u, cmd.plan_x[0] + (dt - lag) * cmd.u
             row.update(sim.extras())  # means over the period this row's command flew
             row.update(now)  # values at this row's time, as the state
             sink(row)

@@ -7,10 +7,14 @@ Layout (see the built-in files in ``aeromanip/scenarios/`` for documented exampl
     sim ("kinematic" | "physics" | "package.module:Class")
     robot = "x8-3dof"  |  robot = "path/robot.toml"  |  [robot] ... (inline robot table)
     [controller]  strategy, backend (a name or "package.module:Class"), horizon, dt,
-                  time_budget, [hierarchy], [solver_options]
+                  time_budget, latency [s] (command delay, compensated by prediction),
+                  weights_dt [s] (the period the weights were tuned at: rescaled to dt),
+                  [hierarchy], [solver_options],
+                  [response] (per DoF name or "default": rate time constants [s])
     [bounds]      joints, velocity (bools), platform_box = { z = [lo, hi], ... },
                   platform_margin [m], joint_margin [rad] (the NMPC plans inside the
-                  box and joint limits shrunk by them)
+                  box and joint limits shrunk by them), acceleration = { x = a, ...,
+                  default = a } [m/s^2, rad/s^2] (command-rate bounds)
     [clearance]   d_min, points, margin [m] (planned at d_min + margin; omit the table
                   for no self-collision constraint)
     [reference]   kind = "sinusoids" | "waypoints" | "lissajous" | "csv" | "constant" |
@@ -38,6 +42,7 @@ from aeromanip.errors import ConfigError
 from aeromanip.experiment.sources import builtin_scenarios, expand_variants, scenario_source
 from aeromanip.nmpc.backends import BACKENDS
 from aeromanip.nmpc.constraints import D_MIN, Bounds, Clearance
+from aeromanip.nmpc.model import MAX_TAU
 from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.strategies import ABS_TOL, MAX_ABS_TOL, MAX_REL_TOL, MODE, REL_TOL
 from aeromanip.nmpc.transcription import MODES
@@ -72,6 +77,7 @@ class Scenario:
     solver_options: dict[str, Any]
     hierarchy: dict[str, Any]
     time_budget_s: float | None
+    latency_s: float
     duration: float
     x0: np.ndarray
     sim: str
@@ -97,6 +103,9 @@ class ControllerSettings:
     strategy: str
     backend: str
     time_budget_s: float | None
+    latency_s: float
+    weights_dt: float | None
+    response_tau: np.ndarray | None
     hierarchy: dict[str, Any]
     solver_options: dict[str, Any]
 
@@ -112,7 +121,27 @@ def _robot(t: Table, base_dir: Path) -> RobotSpec:
     return robot_from_table(t.table("robot"), base_dir=base_dir)
 
 
-def _controller(t: Table) -> ControllerSettings:
+def per_dof(
+    table: Table, names: tuple[str, ...], default: float, minimum: float, maximum: float
+) -> np.ndarray:
+    """A table of values keyed by state name (``default`` for the others, or the table's
+    own ``default`` key), each checked within ``[minimum, maximum]``."""
+    unknown = set(table.data) - set(names) - {"default"}
+    if unknown:
+        key = table.key(sorted(unknown)[0])
+        raise ConfigError(f"{key}: unknown DoF (use {list(names)} or 'default')")
+    fallback = table.float("default", default, finite=False, minimum=minimum, maximum=maximum)
+    return np.array(
+        [
+            table.float(n, fallback, finite=False, minimum=minimum, maximum=maximum)
+            if n in table.data
+            else fallback
+            for n in names
+        ]
+    )
+
+
+def _controller(t: Table, robot: RobotSpec) -> ControllerSettings:
     ct = t.table("controller")
     horizon = ct.int("horizon", minimum=1, maximum=MAX_HORIZON)
     dt = ct.float("dt", minimum=MIN_DT, maximum=MAX_DT)
@@ -121,6 +150,15 @@ def _controller(t: Table) -> ControllerSettings:
     backend_cls = BACKENDS.get(backend, ct.key("backend"))  # known, or a class that loads
     budget = ct.raw("time_budget", None)
     budget = None if budget is None else ct.float("time_budget", positive=True)
+    latency = ct.float("latency", 0.0, minimum=0.0)
+    if latency >= dt:
+        raise ConfigError(f"{ct.key('latency')}: must be below dt = {dt:g} s, got {latency:g}")
+    weights_dt = ct.raw("weights_dt", None)
+    if weights_dt is not None:
+        weights_dt = ct.float("weights_dt", minimum=MIN_DT, maximum=MAX_DT)
+    tau = None
+    if ct.has("response"):
+        tau = per_dof(ct.table("response"), robot.state_names, 0.0, 0.0, MAX_TAU)
     hierarchy = {}
     if strategy == "hierarchical" or ct.has("hierarchy"):
         ht = ct.table("hierarchy", {})
@@ -136,7 +174,9 @@ def _controller(t: Table) -> ControllerSettings:
     backend_cls.check_options(solver_options)  # before anything is built
     ct.resolved["solver_options"] = solver_options
     ct.done()
-    return ControllerSettings(horizon, dt, strategy, backend, budget, hierarchy, solver_options)
+    return ControllerSettings(
+        horizon, dt, strategy, backend, budget, latency, weights_dt, tau, hierarchy, solver_options
+    )
 
 
 def _bounds(t: Table, robot: RobotSpec) -> tuple[Bounds, Bounds]:
@@ -153,6 +193,12 @@ def _bounds(t: Table, robot: RobotSpec) -> tuple[Bounds, Bounds]:
             raise ConfigError(f"{bt.key(key)}: must be >= 0, got {m}")
     flags = {"joint_limits": bt.bool("joints", True), "velocity_limits": bt.bool("velocity", True)}
     limits = Bounds.from_robot(robot, platform_box=box, **flags)
+    if bt.has("acceleration"):
+        at = bt.table("acceleration")
+        accel = per_dof(at, robot.state_names, np.inf, 0.0, np.inf)
+        if np.any(accel <= 0):
+            raise ConfigError(f"{at.key(robot.state_names[int(np.argmin(accel))])}: must be > 0")
+        limits = limits.with_accel(accel)
     # constraint tightening: the NMPC plans inside bounds shrunk by the margins, so that the
     # real robot, lagging its references a little (physics), stays inside the true ones
     shrink = {d: margins["platform_margin"] for d in box}
@@ -240,14 +286,23 @@ def _initial_state(
     return x0
 
 
-def _simulation(t: Table, robot: RobotSpec) -> tuple[str, dict[str, Any]]:
-    """The simulator's name and the ``[physics]`` options (read even when not used)."""
+def _simulation(t: Table, robot: RobotSpec, cs: ControllerSettings) -> tuple[str, dict[str, Any]]:
+    """The simulator's name and the ``[physics]`` options (read even when not used);
+    the control period and the latency are whole numbers of the simulator's steps."""
     sim = t.str("sim", "kinematic")
     cls = SIMULATORS.get(sim, t.key("sim"))
     physics = dict(t.table("physics", {}).data)
     t.resolved["physics"] = physics
+    options = physics if cls.options_table == "physics" else {}
     if cls.options_table == "physics":  # checked now, built when the run starts
         cls.check_options(physics)
+    h = cls.time_step(options)
+    for key, value in (("dt", cs.dt), ("latency", cs.latency_s)):
+        if h is not None and abs(value / h - round(value / h)) > 1e-6:
+            raise ConfigError(
+                f"controller.{key}: {value:g} s is not a whole number of the {sim} "
+                f"simulator's steps ({h:g} s)"
+            )
     return sim, physics
 
 
@@ -258,14 +313,14 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
     if not name or "/" in name or name in (".", ".."):
         raise ConfigError(f"name: {name!r} must be a non-empty name without '/' (a directory)")
     robot = _robot(t, base_dir)
-    cs = _controller(t)
+    cs = _controller(t, robot)
     limits, bounds = _bounds(t, robot)
-    problem = Problem(robot, cs.horizon, cs.dt, bounds)
+    problem = Problem(robot, cs.horizon, cs.dt, bounds, cs.response_tau, cs.weights_dt)
     reference = reference_from_table(t.table("reference"), base_dir=base_dir)
     tracked = _tasks(t, problem, reference)
     clearance = _clearance(t, problem)
     x0 = _initial_state(t, problem, bounds, clearance)
-    sim, physics = _simulation(t, robot)
+    sim, physics = _simulation(t, robot, cs)
     duration = t.float("duration", minimum=cs.dt, maximum=MAX_DURATION)
     if duration / cs.dt > MAX_STEPS:
         raise ConfigError(
@@ -288,6 +343,7 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
         solver_options=cs.solver_options,
         hierarchy=cs.hierarchy,
         time_budget_s=cs.time_budget_s,
+        latency_s=cs.latency_s,
         duration=duration,
         x0=x0,
         sim=sim,

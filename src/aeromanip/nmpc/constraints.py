@@ -23,7 +23,9 @@ D_MIN = 0.1  # [m] default self-collision clearance below the base (paper eq. 17
 
 @dataclass(frozen=True)
 class Bounds:
-    """Box bounds on the state ``x`` [m, rad] and the command ``u = dx/dt`` [m/s, rad/s].
+    """Box bounds on the state ``x`` [m, rad] and the command ``u = dx/dt`` [m/s, rad/s],
+    and on how fast the command may change, ``|u[k] - u[k-1]| <= accel dt`` [m/s^2, rad/s^2]
+    (the platform's and the joints' acceleration; ``None``: unbounded).
 
     Unbounded entries are ``-inf``/``inf``.
     """
@@ -33,8 +35,15 @@ class Bounds:
     x_upper: np.ndarray
     u_lower: np.ndarray
     u_upper: np.ndarray
+    accel: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        if self.accel is not None:
+            a = np.asarray(self.accel, dtype=float)
+            if a.shape != (len(self.names),) or np.any(np.isnan(a)) or np.any(a <= 0):
+                raise ConfigError(
+                    f"bounds.acceleration: expected {len(self.names)} values > 0, got {a}"
+                )
         for kind in ("x", "u"):
             lo, hi = getattr(self, f"{kind}_lower"), getattr(self, f"{kind}_upper")
             if lo.shape != (len(self.names),) or hi.shape != (len(self.names),):
@@ -100,7 +109,20 @@ class Bounds:
             lo[i], hi[i] = lo[i] + m, hi[i] - m
             if lo[i] > hi[i]:
                 raise ConfigError(f"bounds margin: {m} closes the bounds of {name}")
-        return Bounds(self.names, lo, hi, self.u_lower.copy(), self.u_upper.copy())
+        return Bounds(
+            self.names, lo, hi, self.u_lower.copy(), self.u_upper.copy(), self.accel_limits
+        )
+
+    @property
+    def accel_limits(self) -> np.ndarray | None:
+        """The command-rate bounds [unit/s^2] (a copy; ``None`` if every one is infinite)."""
+        if self.accel is None or not np.any(np.isfinite(self.accel)):
+            return None
+        return np.asarray(self.accel, dtype=float).copy()
+
+    def with_accel(self, accel: np.ndarray | None) -> Bounds:
+        """The same bounds with command-rate bounds ``accel`` (per DoF, ``inf``: none)."""
+        return Bounds(self.names, self.x_lower, self.x_upper, self.u_lower, self.u_upper, accel)
 
     def as_dict(self) -> dict[str, list[float]]:
         """Finite bounds keyed like the run log columns: ``q1``, ``x``, ``u_q1``, ..."""

@@ -3,6 +3,11 @@
 On a failed or over-budget solve it never raises: it applies the next command of the
 last valid plan (shifted by the steps elapsed since it was computed, clipped to the
 bounds) or, without one, stops (zero rates), and flags it in ``Command.status``.
+
+Latency compensation: a command computed from the state measured at ``t`` takes effect
+at ``t + latency`` (the solve, the link); until then the previous one flies. With
+``latency_s > 0`` the controller plans from the state its model predicts at that time,
+under the previous command, and against the references of that time.
 """
 
 from __future__ import annotations
@@ -61,6 +66,8 @@ class Controller:
         solver_options: extra options for the backend.
         hierarchy: options of ``Hierarchical`` (``mode``, ``rel_tol``, ``abs_tol``).
         time_budget_s: a solve slower than this is treated as failed (None: no budget).
+        latency_s: the time from measuring the state to the command taking effect [s],
+            compensated by prediction (module docstring); 0: none.
     """
 
     def __init__(
@@ -71,8 +78,12 @@ class Controller:
         solver_options: Mapping[str, Any] | None = None,
         hierarchy: Mapping[str, Any] | None = None,
         time_budget_s: float | None = None,
+        latency_s: float = 0.0,
     ) -> None:
         self.problem = problem
+        if not (0.0 <= latency_s < problem.dt):
+            raise ConfigError(f"latency: must be in [0, dt = {problem.dt:g}) s, got {latency_s!r}")
+        self.latency_s = float(latency_s)
         if strategy == "weighted":
             if hierarchy:
                 raise ConfigError("hierarchy: options given but strategy is 'weighted'")
@@ -91,6 +102,7 @@ class Controller:
     def reset(self, u_prev: np.ndarray | None = None) -> None:
         """Forget plans and warm starts; ``u_prev`` is the command applied so far (default 0)."""
         self.u_prev = np.zeros(self.nx) if u_prev is None else self._vector(u_prev, "u_prev")
+        self._rates: np.ndarray | None = None  # the actual rates at the plan's start
         self._plan: tuple[np.ndarray, np.ndarray, int] | None = None  # X, U, steps since
         self._level_w: list[np.ndarray] = []  # each level's last solution (warm starts)
         self.strategy.reset()
@@ -116,14 +128,14 @@ class Controller:
             return self._shifted(x0, *self._plan[:2])
         N = self.problem.horizon
         X, U = np.repeat(x0[None, :], N + 1, axis=0), np.zeros((N, self.nx))
-        return self.strategy.transcription.pack(X, U, self.u_prev)
+        return self.strategy.transcription.pack(X, U, self.u_prev, self._rates)
 
     def _shifted(self, x0: np.ndarray, X: np.ndarray, U: np.ndarray) -> np.ndarray:
         """A plan moved one step on (last command repeated), starting from ``x0``."""
         X = np.vstack([X[1:], X[-1:]])
         U = np.vstack([U[1:], U[-1:]])
         X[0] = x0
-        return self.strategy.transcription.pack(X, U, self.u_prev)
+        return self.strategy.transcription.pack(X, U, self.u_prev, self._rates)
 
     def initial_guesses(self, x0: np.ndarray) -> list[np.ndarray | None]:
         """Per level: its own last solution shifted, if any (level 0: else the last plan)."""
@@ -135,15 +147,30 @@ class Controller:
             guesses[0] = self._initial_guess(x0)
         return guesses
 
-    def step(self, state: Any, t: float) -> Command:
-        """Solve the NMPC at time ``t`` [s] from ``state`` and return the command to apply."""
-        x0 = self._vector(state, "state")
+    def _start(self, x: np.ndarray, rates: np.ndarray | None) -> np.ndarray:
+        """The plan's start: the measured state, or with latency the model's prediction
+        of it when the command takes effect (the previous command flying until then)."""
+        model = self.problem.model
+        z0 = model.predict(model.initial(x, self.u_prev, rates), self.u_prev, self.latency_s)
+        self._rates = model.rates_of(z0) if model.has_response else None
+        return z0[: self.nx]
+
+    def step(self, state: Any, t: float, rates: Any = None) -> Command:
+        """Solve the NMPC at time ``t`` [s] from ``state`` and return the command to apply.
+
+        ``rates``: the measured actual rates ``dx/dt`` (used by a model with rate
+        responses; default: the last command, as if followed at once).
+        """
+        x_meas = self._vector(state, "state")
         if isinstance(t, bool) or not isinstance(t, int | float | np.number) or not np.isfinite(t):
             raise StateError(f"t: must be a finite number of seconds, got {t!r}")
+        r0 = None if rates is None else self._vector(rates, "rates")
+        x0 = self._start(x_meas, r0)
         tr = self.strategy.transcription
-        p = tr.parameters(x0, self.u_prev, self.problem.stage_params(t))
+        t_plan = t + self.latency_s
+        p = tr.parameters(x0, self.u_prev, self.problem.stage_params(t_plan), self._rates)
         res: StrategyResult = self.strategy.solve(p, self.initial_guesses(x0))
-        message = "" if res.status == "ok" else res.status
+        message = ("" if res.status == "ok" else res.status) + self._widened(p)
         ok = res.success
         if ok and self.time_budget_s is not None and res.solve_time_s > self.time_budget_s:
             ok = False
@@ -170,6 +197,14 @@ class Controller:
         return Command(
             u, X, U, task_costs, status, message, res.iterations, res.solve_time_s, res.levels
         )
+
+    def _widened(self, p: np.ndarray) -> str:
+        """Which DoFs' state box this solve widened to keep a plan feasible, and by how
+        much (``Transcription.variable_bounds``); empty when none."""
+        wide = self.strategy.transcription.box_widening(p)
+        names = self.problem.robot.state_names
+        out = [f"{n} +{v:.3g}" for n, v in zip(names, wide, strict=True) if v > 0]
+        return f" (state box widened: {', '.join(out)})" if out else ""
 
     def _outside_bounds(self, x0: np.ndarray) -> str:
         """Why a solve may fail that no solver can help: the state beyond its hard bounds."""

@@ -1,7 +1,8 @@
 """The NMPC problem: robot, horizon, tasks with weights and levels, constraints.
 
-Problem (paper eq. 3-4): ``x[k+1] = x[k] + dt u[k]`` over ``N`` steps, cost = weighted
-task residuals, under bounds and path constraints. It only describes what to optimise;
+Problem (paper eq. 3-4): ``x[k+1] = x[k] + dt u[k]`` over ``N`` steps (or, with rate
+responses, the model of ``nmpc.model``), cost = weighted task residuals, under bounds
+and path constraints. It only describes what to optimise;
 ``nmpc.transcription`` turns it into an NLP per hierarchy level, built once and solved at
 every control step.
 """
@@ -15,6 +16,7 @@ import numpy as np
 
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.constraints import Bounds, PathConstraint
+from aeromanip.nmpc.model import RateModel
 from aeromanip.robot.kinematics import Kinematics
 from aeromanip.robot.spec import RobotSpec
 from aeromanip.tasks.base import Task
@@ -46,10 +48,21 @@ class Problem:
         horizon: number of steps ``N``.
         dt: step ``Ts`` [s].
         bounds: state/command bounds; default: the robot's joint and velocity limits.
+        response_tau: per DoF, the time constant of its rate response [s] (``RateModel``;
+            ``None``: the paper's model, rates followed at once).
+        weights_dt: the control period [s] the weights were tuned at: at another ``dt``
+            each stage weight is rescaled (``Task.time_scaling``) so that the cost stays
+            the same time integral (``None``: weights taken as they are).
     """
 
     def __init__(
-        self, robot: RobotSpec, horizon: int, dt: float, bounds: Bounds | None = None
+        self,
+        robot: RobotSpec,
+        horizon: int,
+        dt: float,
+        bounds: Bounds | None = None,
+        response_tau: np.ndarray | None = None,
+        weights_dt: float | None = None,
     ) -> None:
         if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
             raise ConfigError(f"horizon: must be an integer >= 1, got {horizon!r}")
@@ -62,6 +75,10 @@ class Problem:
         self.bounds = bounds if bounds is not None else Bounds.from_robot(robot)
         if self.bounds.names != robot.state_names:
             raise ConfigError(f"bounds: names {self.bounds.names} != state {robot.state_names}")
+        self.model = RateModel(robot.nx, self.dt, response_tau)
+        if weights_dt is not None and not (weights_dt > 0 and np.isfinite(weights_dt)):
+            raise ConfigError(f"weights_dt: must be a finite number > 0, got {weights_dt!r}")
+        self.weights_dt = weights_dt
         self.entries: list[TaskEntry] = []
         self.constraints: list[PathConstraint] = []
 
@@ -94,13 +111,26 @@ class Problem:
             if terminal_weight is None
             else self._weight(terminal_weight, size, f"tasks.{name}.terminal_weight")
         )
-        entry = TaskEntry(task, w, ws, level, name)
+        entry = TaskEntry(task, w * self._time_scale(task, f"tasks.{name}"), ws, level, name)
         self.entries.append(entry)
         return entry
 
     def add_constraint(self, constraint: PathConstraint) -> None:
         """Add a path constraint (applied at stages 1..N)."""
         self.constraints.append(constraint)
+
+    def _time_scale(self, task: Task, path: str) -> float:
+        """The factor on the task's stage weight for ``weights_dt`` (terminal: none)."""
+        if self.weights_dt is None:
+            return 1.0
+        s = self.dt / self.weights_dt
+        if task.time_scaling == "integral":
+            return s
+        if task.time_scaling == "difference":
+            return 1.0 / s
+        raise ConfigError(
+            f"{path}: time_scaling {task.time_scaling!r} is not 'integral' or 'difference'"
+        )
 
     def _weight(self, weight: Weight, size: int, path: str) -> np.ndarray:
         if isinstance(weight, Mapping):

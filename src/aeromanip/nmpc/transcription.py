@@ -2,12 +2,13 @@
 
 To keep every term stage-local (what structure-exploiting solvers need), the previous
 command is carried in an augmented state ``z = [x; v]`` with ``v[k+1] = u[k]`` and
-``v[0]`` = the applied command: the control-rate cost is then ``||u[k] - v[k]||^2`` and
-the terminal control cost ``||v[N]||^2``.
+``v[0]`` = the applied command: the control-rate cost is then ``||u[k] - v[k]||^2``, the
+terminal control cost ``||v[N]||^2`` and the command-rate bounds ``|u[k] - v[k]| <= a dt``.
+With rate responses (``nmpc.model``) the actual rates ride along: ``z = [x; v; r]``.
 
 Variables are ordered stage by stage ``[z0, u0, z1, u1, ..., z_N]``; constraint rows
-likewise, each stage's gap-closing rows first (what fatrop's structure detection needs).
-The NLP's parameters are ``p = [x0, u_prev, refs]``.
+likewise, each stage's gap-closing rows first (what fatrop's structure detection needs),
+then path, hierarchy and command-rate rows. The NLP's parameters are ``p = [z0, refs]``.
 """
 
 from __future__ import annotations
@@ -76,7 +77,9 @@ class StageModel:
 
     ``cost(z, u, pk) -> (objective cost, each group's cost, path rows, each task's cost)``;
     ``residuals(z, u, pk) -> (objective residuals, each group's residuals)`` (weighted:
-    the costs are their squared norms); ``terminal_*`` the same of ``(z, pk)``.
+    the costs are their squared norms); ``terminal_*`` the same of ``(z, pk)``;
+    ``accel(z, u)``: the command-rate rows ``u - v`` of the bounded DoFs, within
+    ``accel_bounds`` (``None`` without command-rate bounds).
     """
 
     cost: ca.Function
@@ -85,17 +88,20 @@ class StageModel:
     terminal_residuals: ca.Function
     path: PathRows
     terminal_path: PathRows
+    accel: ca.Function | None = None
+    accel_bounds: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def _stage_model(problem: Problem, objective: list[int], groups: list[list[int]]) -> StageModel:
     """Build the stage and terminal Functions (see ``StageModel``)."""
     kin, nx = problem.kin, problem.kin.nx
-    z, u, pk = ca.SX.sym("z", 2 * nx), ca.SX.sym("u", nx), ca.SX.sym("pk", problem.param_size)
+    z, u = ca.SX.sym("z", problem.model.nz), ca.SX.sym("u", nx)
+    pk = ca.SX.sym("pk", problem.param_size)
     offsets = np.cumsum([0] + [e.task.param_size for e in problem.entries])
 
     def stage(i: int | None, with_u: bool) -> Stage:
         a, b = (offsets[i], offsets[i + 1]) if i is not None else (0, 0)
-        return Stage(kin, z[:nx], u if with_u else None, z[nx:], pk[a:b], problem.dt)
+        return Stage(kin, z[:nx], u if with_u else None, z[nx : 2 * nx], pk[a:b], problem.dt)
 
     def weighted(with_u: bool) -> list[ca.SX]:
         """``sqrt(W) r`` per task (its cost is the squared norm)."""
@@ -126,7 +132,13 @@ def _stage_model(problem: Problem, objective: list[int], groups: list[list[int]]
     terminal_cost, terminal_residuals = functions(
         "terminal", [z, pk], weighted(False), terminal_path
     )
-    return StageModel(cost, terminal_cost, residuals, terminal_residuals, path, terminal_path)
+    model = StageModel(cost, terminal_cost, residuals, terminal_residuals, path, terminal_path)
+    limits = problem.bounds.accel_limits
+    if limits is not None:  # |u - v| <= a dt on the bounded DoFs
+        dofs = np.flatnonzero(np.isfinite(limits))
+        model.accel = ca.Function("accel", [z, u], [(u - z[nx : 2 * nx])[dofs.tolist()]])
+        model.accel_bounds = (-limits[dofs] * problem.dt, limits[dofs] * problem.dt)
+    return model
 
 
 def _path_rows(problem: Problem, stage: Stage, with_u: bool) -> PathRows:
@@ -176,13 +188,18 @@ class Transcription:
             raise ConfigError(f"hierarchy.mode: {mode!r} is not one of {MODES}")
         self.problem, self.mode = problem, mode
         self.N, self.nx = problem.horizon, problem.kin.nx
-        self.nz = 2 * self.nx
+        self.model = problem.model
+        self.nz = self.model.nz
         self.stride = self.nz + self.nx
         idx = {e.name: i for i, e in enumerate(problem.entries)}
         groups = [[idx[e.name] for e in g] for g in constrained]
         self.stage_model = _stage_model(problem, [idx[e.name] for e in objective], groups)
         self._build(len(groups))
         self._layout()
+        limits = problem.bounds.accel_limits
+        #: per DoF, the most the command may change in one step (``inf``: unbounded)
+        self._max_change = np.full(self.nx, np.inf) if limits is None else limits * problem.dt
+        self._bounds_memo: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None
 
     # -- building the NLP ---------------------------------------------------------------
     def _build(self, n_groups: int) -> None:
@@ -211,7 +228,7 @@ class Transcription:
             self.hier_rows[j] = self.rows.add(c_sum, -np.inf, np.inf, f"hier{j}", COUPLING)
             self.hier_residuals.append((self.hier_rows[j][0], ca.vertcat(*r_list)))
         self.w, self.f = ca.vertcat(*w), f
-        self.p = ca.vertcat(ca.SX.sym("x0", nx), ca.SX.sym("u_prev", nx), ca.vec(P))
+        self.p = ca.vertcat(ca.SX.sym("z0", nz), ca.vec(P))
         self.residuals = ca.vertcat(*res_obj)
         self.g = ca.vertcat(*self.rows.exprs)
         self.lbw, self.ubw = np.concatenate(lbw), np.concatenate(ubw)
@@ -228,8 +245,8 @@ class Transcription:
         self, k: int, Z: list[ca.SX], U: list[ca.SX]
     ) -> list[tuple[ca.SX, np.ndarray, np.ndarray]]:
         """Stage ``k``'s variables with their bounds: ``z[k]`` (free at stage 0, pinned at
-        solve time; ``v`` always free) and ``u[k]`` (but at the terminal stage)."""
-        b, free = self.problem.bounds, np.full(self.nx, np.inf)
+        solve time; ``v`` and ``r`` always free) and ``u[k]`` (but at the terminal stage)."""
+        b, free = self.problem.bounds, np.full(self.nz - self.nx, np.inf)
         if k == 0:
             out = [(Z[0], -np.full(self.nz, np.inf), np.full(self.nz, np.inf))]
         else:
@@ -261,11 +278,11 @@ class Transcription:
         group_res: list[ca.SX],
         totals: list[tuple[ca.SX, list[ca.SX]]],
     ) -> None:
-        """Stage ``k``'s rows: the gap-closing ones first, path rows, hierarchy rows."""
+        """Stage ``k``'s rows: the gap-closing ones first, path rows, hierarchy rows, then
+        the command-rate rows."""
         book, sm = self.rows, self.stage_model
         if k < self.N:
-            x_next = Z[k][: self.nx] + self.problem.dt * U[k]
-            gap = Z[k + 1] - ca.vertcat(x_next, U[k])
+            gap = Z[k + 1] - self.model.next_sx(Z[k], U[k])
             self.gap_rows += book.add(gap, 0.0, 0.0, "gap", k)
         if k > 0 and path.numel():
             bounds = sm.path if k < self.N else sm.terminal_path
@@ -280,14 +297,17 @@ class Transcription:
             else:
                 c_sum, r_list = totals[j]
                 totals[j] = (c_sum + hier[j], [*r_list, r])
+        if k < self.N and sm.accel is not None and sm.accel_bounds is not None:
+            book.add(sm.accel(Z[k], U[k]), *sm.accel_bounds, "accel", k)
 
     def _layout(self) -> None:
         """Where each block sits in ``w``, and the shift maps of the warm start."""
         N, nx, s = self.N, self.nx, self.stride
         k = np.arange(N + 1)[:, None] * s
-        #: where X (N+1, nx), V (N+1, nx) and U (N, nx) sit in the variable vector
+        #: where X (N+1, nx), V (N+1, nx), Z (N+1, nz) and U (N, nx) sit in ``w``
         self.index_x = k + np.arange(nx)
         self.index_v = k + nx + np.arange(nx)
+        self.index_z = k + np.arange(self.nz)
         self.index_u = k[:N] + self.nz + np.arange(nx)
         # the multipliers of the next control step, predicted: ``lam[shift]`` gives each
         # row (variable) of stage k the one of the same kind and place in stage k+1; rows
@@ -330,28 +350,60 @@ class Transcription:
         run()
         return out.reshape(shape, order="F").copy()
 
-    def variable_bounds(self, x0: np.ndarray, u_prev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``lbw, ubw`` with the stage-0 augmented state pinned to ``[x0, u_prev]``."""
+    def variable_bounds(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``lbw, ubw`` with the stage-0 augmented state pinned to ``z0`` (from ``p``) and
+        the state box of each later stage widened, where needed, to hold a recovery plan
+        (``RateModel.recovery``: each step as far into the box as the rates allow): a
+        state outside its box, or whose rates carry it out before it can stop (lagging
+        rates, command-rate bounds), would otherwise make every plan infeasible. The box
+        is kept wherever that plan keeps it; the widening ends where it is back inside."""
+        z0 = np.asarray(p[: self.nz], dtype=float)
+        key = z0.tobytes()
+        if self._bounds_memo is not None and self._bounds_memo[0] == key:
+            return self._bounds_memo[1]
         lbw, ubw = self.lbw.copy(), self.ubw.copy()
-        lbw[: self.nz] = ubw[: self.nz] = np.concatenate([x0, u_prev])
+        lbw[: self.nz] = ubw[: self.nz] = z0
+        b = self.problem.bounds
+        x_brake = self.model.recovery(
+            z0, self.N, self._max_change, (b.x_lower, b.x_upper), (b.u_lower, b.u_upper)
+        )
+        idx = self.index_x[1:]
+        lbw[idx] = np.minimum(lbw[idx], x_brake)
+        ubw[idx] = np.maximum(ubw[idx], x_brake)
+        self._bounds_memo = (key, (lbw, ubw))
         return lbw, ubw
 
+    def box_widening(self, p: np.ndarray) -> np.ndarray:
+        """Per DoF, how far [m, rad] ``variable_bounds(p)`` widens the state box (0: not)."""
+        lbw, ubw = self.variable_bounds(p)
+        idx = self.index_x[1:]
+        with np.errstate(invalid="ignore"):  # inf - inf where a side is unbounded
+            wide = np.maximum(self.lbw[idx] - lbw[idx], ubw[idx] - self.ubw[idx])
+        return np.nan_to_num(wide, nan=0.0).max(axis=0)
+
     def parameters(
-        self, x0: np.ndarray, u_prev: np.ndarray, stage_params: np.ndarray
+        self,
+        x0: np.ndarray,
+        u_prev: np.ndarray,
+        stage_params: np.ndarray,
+        rates: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Pack ``p = [x0, u_prev, refs]``; ``stage_params`` is (N+1, param_size), stage-major."""
-        return np.concatenate([x0, u_prev, np.asarray(stage_params, dtype=float).reshape(-1)])
+        """Pack ``p = [z0, refs]``; ``stage_params`` is (N+1, param_size), stage-major;
+        ``rates``: the measured actual rates (with a rate response; default ``u_prev``)."""
+        z0 = self.model.initial(x0, u_prev, rates)
+        return np.concatenate([z0, np.asarray(stage_params, dtype=float).reshape(-1)])
 
     def unpack(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """States ``X`` (N+1, nx) and commands ``U`` (N, nx) from the variable vector."""
         w = np.asarray(w, dtype=float).ravel()
         return w[self.index_x], w[self.index_u]
 
-    def pack(self, X: np.ndarray, U: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
-        """Variable vector for a trajectory (``v`` filled from the commands)."""
+    def pack(
+        self, X: np.ndarray, U: np.ndarray, u_prev: np.ndarray, rates: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Variable vector for a trajectory (``v`` and ``r`` rolled out from the commands)."""
         w = np.empty(self.stride * self.N + self.nz)
+        w[self.index_z] = self.model.rollout(self.model.initial(X[0], u_prev, rates), U)
         w[self.index_x] = X
         w[self.index_u] = U
-        w[self.index_v[0]] = u_prev
-        w[self.index_v[1:]] = U
         return w

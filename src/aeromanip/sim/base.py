@@ -67,6 +67,18 @@ class Simulator(ABC):
         """The NMPC state without measurement noise (what the run log records)."""
         return self.state()
 
+    def rates(self) -> np.ndarray | None:
+        """The actual rates ``dx/dt`` now [m/s, rad/s], as an autopilot estimates them;
+        ``None``: not measured (a controller then takes its last command as followed)."""
+        return None
+
+    #: the simulator's time step [s] (commands and latencies must be whole multiples of
+    #: it), from its options; ``None``: any duration
+    @classmethod
+    def time_step(cls, options: Mapping[str, Any]) -> float | None:
+        """The time step ``options`` give [s] (see above); by default none."""
+        return None
+
     def ee_position(self) -> np.ndarray | None:
         """The physical end-effector position [m], world frame, if it differs from the
         kinematic model's (e.g. tilted platform in physics); ``None`` otherwise."""

@@ -24,10 +24,16 @@ class KinematicSimulator(Simulator):
         if x0.shape != (self.nx,) or not np.all(np.isfinite(x0)):
             raise StateError(f"initial state: expected {self.nx} finite values, got {x0}")
         self.x = x0.copy()
+        self.u = np.zeros(self.nx)
 
     def advance(self, u: np.ndarray, plan_x: np.ndarray, dt: float) -> None:
         """Integrate the constant command over ``dt`` [s]."""
-        self.x = self.x + dt * np.asarray(u, dtype=float)
+        self.u = np.asarray(u, dtype=float).copy()
+        self.x = self.x + dt * self.u
+
+    def rates(self) -> np.ndarray:
+        """The last command: followed at once."""
+        return self.u.copy()
 
     def state(self) -> np.ndarray:
         """The exact state."""

@@ -5,12 +5,15 @@ default) the flight controller's attitude/rate loop, the mixer and the arm servo
 the true state (between ``mj_step1`` and ``mj_step2``); the controller's position/velocity
 loop runs every ``outer_every`` physics steps (``outer_rate_hz``, 100 Hz by default, rounded
 to an integer divisor of ``rate_hz``; PX4 runs it at 50-100 Hz) and its thrust-vector
-set-point is held in between. The references move linearly within a control period from the
-plan's first state along the command ``u`` (with ``u`` as velocity feed-forward). Inactive
-platform DoFs are held at their fixed values. Joint servos are MuJoCo position actuators (PD,
-see ``mjcf.servo_gains``) whose set-point is shifted every physics step to add velocity
-feed-forward and an integral term: ``tau = kp (q_ref - q) + kv (u_q - qdot) + ki int (q_ref -
-q)``. The per-step Python works on floats (no NumPy on 3-vectors, no per-step arrays).
+set-point is held in between. What the NMPC's command sets in the flight controller
+(``setpoint``, as in PX4's offboard mode): ``"position"``, a position reference moving
+linearly within the control period from the plan's first state along the command ``u``,
+with ``u`` as velocity feed-forward; or ``"velocity"``, ``u`` as the velocity and yaw-rate
+set-point (no position loop: the NMPC closes it). Inactive platform DoFs are held at their
+fixed values. Joint servos are MuJoCo position actuators (PD, see ``mjcf.servo_gains``) whose
+set-point is shifted every physics step to add velocity feed-forward and an integral term:
+``tau = kp (q_ref - q) + kv (u_q - qdot) + ki int (q_ref - q)``. The per-step Python works
+on floats (no NumPy on 3-vectors, no per-step arrays).
 
 ``arm_torque`` (extras) is the wrench the arm exerts on the base through the mount, from
 MuJoCo's ``cfrc_int`` of the first arm body (the force/torque its parent transmits to it,
@@ -41,8 +44,10 @@ from aeromanip.sim.mjcf import FREE_JOINT, K_M, SERVO_HZ, max_rotor_thrust, robo
 
 NOISE_KEYS = ("position", "yaw", "joints")
 OPTION_KEYS = (
-    "rate_hz", "outer_rate_hz", "rotors", "seed", "noise", "gains", "servo_hz", "servo_i"
+    "rate_hz", "outer_rate_hz", "rotors", "seed", "noise", "gains", "servo_hz", "servo_i",
+    "setpoint",
 )  # fmt: skip
+SETPOINTS = ("position", "velocity")  # what a command sets in the flight controller
 SERVO_I = 4.0  # [1/s] servo integral gain relative to kp (ki = SERVO_I kp)
 RATE_HZ = 500.0  # [Hz] default physics and attitude/rate-loop rate
 MIN_RATE_HZ = 100.0  # [Hz] lowest accepted physics rate
@@ -81,6 +86,7 @@ class PhysicsSimulator(Simulator):
         gains: flight-controller gains (``FlightGains()`` by default).
         servo_hz: joint servo bandwidth at the largest joint inertia [Hz].
         servo_i: servo integral gain relative to kp [1/s].
+        setpoint: ``"position"`` or ``"velocity"`` (module docstring).
 
     Attributes:
         model, data: the MuJoCo model and data (open ``to_xml()`` in ``mujoco.viewer``).
@@ -103,8 +109,12 @@ class PhysicsSimulator(Simulator):
         gains: FlightGains | None = None,
         servo_hz: float = SERVO_HZ,
         servo_i: float = SERVO_I,
+        setpoint: str = SETPOINTS[0],
     ) -> None:
         self.spec = spec
+        if setpoint not in SETPOINTS:
+            raise ConfigError(f"physics.setpoint: {setpoint!r} is not one of {list(SETPOINTS)}")
+        self.velocity_setpoint = setpoint == "velocity"
         self._read_options(rate_hz, outer_rate_hz, noise, seed, servo_i)
         self.h = 1.0 / self.rate_hz
         rotors = spec.platform.rotors if rotors is None else rotors
@@ -203,6 +213,8 @@ class PhysicsSimulator(Simulator):
                 raise ConfigError(f"physics.{key}: unknown key (choose from {OPTION_KEYS})")
             if key in ("noise", "gains") and not isinstance(value, Mapping):
                 raise ConfigError(f"physics.{key}: must be a table, got {value!r}")
+            if key == "setpoint" and value not in SETPOINTS:
+                raise ConfigError(f"physics.setpoint: {value!r} is not one of {list(SETPOINTS)}")
             if key in ("rotors", "seed") and (
                 isinstance(value, bool) or not isinstance(value, int)
             ):
@@ -309,15 +321,18 @@ class PhysicsSimulator(Simulator):
         qpos, qvel, ctrl, xmat = self._qpos, self._qvel, self._ctrl, self._xmat_base
         outer, inner, step1, step2 = fc.outer, fc.inner, mujoco.mj_step1, mujoco.mj_step2
         torque_sum, samples, motor_sum, spread_sum = 0.0, 0, [0.0] * self.rotors, 0.0
+        velocity_only = self.velocity_setpoint
         for k in range(n):
             t = k * h
             step1(m, d)  # kinematics of the current state: the base rotation in xmat
             qp, qv = qpos.tolist(), qvel.tolist()
+            if velocity_only:  # the references follow the body: only the rates are set
+                p_ref, yaw_ref = qp[fq : fq + 3], _yaw_of(*qp[fq + 3 : fq + 7])
+            else:
+                p_ref, yaw_ref = (px + vx * t, py + vy * t, pz + vz * t), yaw0 + yaw_rate * t
             if fc.outer_due:
-                outer(
-                    qp[fq : fq + 3], qv[fv : fv + 3], (px + vx * t, py + vy * t, pz + vz * t), v_ff
-                )
-            motors = inner(xmat.tolist(), qv[fv + 3 : fv + 6], yaw0 + yaw_rate * t, yaw_rate)
+                outer(qp[fq : fq + 3], qv[fv : fv + 3], p_ref, v_ff)
+            motors = inner(xmat.tolist(), qv[fv + 3 : fv + 6], yaw_ref, yaw_rate)
             cmd = motors.copy()
             for j, (adr, lo, hi, kp_inv, ki_h, q0, uq, ff) in enumerate(servos):
                 q_ref = q0 + uq * t
@@ -357,11 +372,8 @@ class PhysicsSimulator(Simulator):
         ``rotor_spread`` (largest minus smallest rotor thrust, the differential thrust
         spent on moments) [N] and ``arm_torque`` [N m] (xy moment of the arm on the base
         about its CoM, body frame)."""
-        w, x, y, z = self.data.qpos[self._free_q + 3 : self._free_q + 7]
-        out = {
-            "roll": math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y)),
-            "pitch": math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x)))),
-        }
+        roll, pitch = self._roll_pitch()
+        out = {"roll": roll, "pitch": pitch}
         for i, f in enumerate(self._motor_mean):
             out[f"motor_{i + 1}"] = float(f)
         out["thrust_total"] = float(self._motor_mean.sum())
@@ -384,6 +396,31 @@ class PhysicsSimulator(Simulator):
             x[self._yaw_idx] = self._yaw
         x[self._n_p :] = qpos[self._q_adr]
         return x
+
+    def rates(self) -> np.ndarray:
+        """The actual rates ``dx/dt`` (no noise): the base's world velocity, the yaw rate
+        (from the body rates, exact at any tilt) and the joint velocities."""
+        qv, fv = self.data.qvel, self._free_v
+        r = np.empty(self.spec.nx)
+        for i, axis in self._pos_idx:
+            r[i] = qv[fv + axis]
+        if self._yaw_idx is not None:
+            roll, pitch = self._roll_pitch()
+            _, wy, wz = qv[fv + 3 : fv + 6]  # body frame
+            r[self._yaw_idx] = (wy * math.sin(roll) + wz * math.cos(roll)) / math.cos(pitch)
+        r[self._n_p :] = qv[self._v_adr]
+        return r
+
+    @classmethod
+    def time_step(cls, options: Mapping[str, Any]) -> float:
+        """One physics step [s]: ``1 / rate_hz``."""
+        return 1.0 / float(cls.check_options(options).get("rate_hz", RATE_HZ))
+
+    def _roll_pitch(self) -> tuple[float, float]:
+        """The base's roll and pitch now [rad] (ZYX Euler angles)."""
+        w, x, y, z = self.data.qpos[self._free_q + 3 : self._free_q + 7]
+        roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+        return roll, math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
 
     def ee_position(self) -> np.ndarray:
         """True end-effector position, world frame [m] (includes roll and pitch)."""

@@ -50,12 +50,19 @@ class Task(ABC):
 
     Attributes:
         name: short identifier used in logs and per-task cost reports.
+        time_scaling: ``"integral"`` or ``"difference"`` (see the attribute).
         param_size: number of time-varying parameters per stage (e.g. 3 for a position
             reference); their values come from ``param_values`` at every controller step.
     """
 
     name: str = "task"
     param_size: int = 0
+    #: how the stage weight follows the control period ``dt`` when the weights were tuned
+    #: at another one (``Problem(weights_dt=...)``): ``"integral"``, a cost per unit time
+    #: (times ``dt / weights_dt``); ``"difference"``, a change over one step such as the
+    #: control rate's ``u_k - u_{k-1}`` (times ``weights_dt / dt``, the time integral of
+    #: the squared acceleration staying the same)
+    time_scaling: str = "integral"
 
     def residual_size(self, kin: Kinematics) -> int:
         """Length of the residual vector (the weight has this many entries)."""

@@ -18,6 +18,7 @@ class ControlRate(Task):
     """
 
     name = "control_rate"
+    time_scaling = "difference"
 
     def residual(self, stage: Stage) -> ca.SX:
         """``u_k - u_{k-1}``."""

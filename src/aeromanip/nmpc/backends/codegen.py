@@ -38,6 +38,9 @@ log = logging.getLogger(__name__)
 
 CFLAGS = ("-O2", "-fPIC", "-shared")
 BUILD_TIMEOUT_S = 1200  # [s] a compiler running longer is killed (the Function runs in-process)
+# instructions to compile beyond which a build is announced: the condensed SQP model at
+# N = 20 (~0.4 M) takes gcc minutes and GiBs of memory, and it grows like N^2
+LARGE_BUILD = 200_000
 _warned: set[str] = set()
 
 
@@ -95,8 +98,26 @@ def compiled_all(fs: Sequence[ca.Function], enabled: bool = True) -> list[ca.Fun
         for lib in missing:
             locks.enter_context(CacheEntry(lib).locked())
         todo = [(f, e) for f, e in zip(fs, entries, strict=True) if not e.valid()]
+        announce_large_build([f for f, _ in todo])
         failed = _build_all(todo, cc)
     return [_load(f, e, f.name() not in failed) for f, e in zip(fs, entries, strict=True)]
+
+
+def announce_large_build(fs: Sequence[ca.Function]) -> bool:
+    """Warn before compiling Functions of more than ``LARGE_BUILD`` instructions in all
+    (the compiler's time and memory grow with them); return whether it warned."""
+    sizes = {f.name(): f.n_instructions() for f in fs}
+    total = sum(sizes.values())
+    if total <= LARGE_BUILD:
+        return False
+    largest = max(sizes, key=sizes.__getitem__)
+    log.warning(
+        "codegen: compiling %d functions of %.2g M instructions (largest %s, %.2g M): "
+        "this may take minutes and GiBs of memory, once (then cached in %s); at long "
+        "horizons solver_options.qpsol = 'hpipm' keeps the code small",
+        len(sizes), total / 1e6, largest, sizes[largest] / 1e6, cache_dir(),
+    )  # fmt: skip
+    return True
 
 
 def _build_all(todo: list[tuple[ca.Function, CacheEntry]], cc: str) -> set[str]:

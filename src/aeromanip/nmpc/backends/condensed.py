@@ -1,6 +1,6 @@
 """The SQP's condensed model: the NLP in the commands ``U`` alone, a dense QP (DAQP).
 
-The model ``x[k+1] = x[k] + dt u[k]``, ``v[k+1] = u[k]`` is linear, so the states are
+The model ``z[k+1] = A z[k] + B u[k]`` (``nmpc.model``) is linear, so the states are
 affine in the commands: the multiple-shooting NLP is solved in ``U`` (``N nx``
 variables), the gap rows holding exactly. The state bounds become linear rows of ``U``.
 The dense residuals, rows and their Jacobians in ``U`` are one compiled Function: fast
@@ -46,13 +46,13 @@ class CondensedModel:
         rows, then the state bounds as rows of ``U``) and the hierarchy rows' residuals
         ``Rh``, as expressions of ``U``. Sets the index maps between layouts."""
         tr, N, nx = self.tr, self.tr.N, self.tr.nx
-        x, v, parts = p[:nx], p[nx : 2 * nx], []
+        z, parts = p[: tr.nz], []
         for k in range(N + 1):  # the model is linear: the states are affine in U
-            parts += [x, v]
+            parts.append(z)
             if k < N:
                 uk = U[k * nx : (k + 1) * nx]
                 parts.append(uk)
-                x, v = x + tr.problem.dt * uk, uk
+                z = tr.model.next_sx(z, uk)
         wU = ca.vertcat(*parts)
         hier = [r for _, r in tr.hier_residuals]
         ms = ca.Function("ms", [tr.w, tr.p], [tr.residuals, tr.g, ca.vertcat(*hier)])
@@ -72,7 +72,6 @@ class CondensedModel:
         self.state_idx = np.array(sidx, dtype=int)
         self.u_idx = np.array([k * s + tr.nz + i for k in range(N) for i in range(nx)], dtype=int)
         self.nk = len(self.keep)
-        self.lb_state, self.ub_state = lbw[self.state_idx], ubw[self.state_idx]
         return R, ca.vertcat(g[self.keep.tolist()], wU[sidx]), Rh
 
     def _compile(self, U: ca.SX, p: ca.SX, R: ca.SX, gc: ca.SX, Rh: ca.SX) -> None:
@@ -121,6 +120,7 @@ class CondensedModel:
     def start(
         self,
         w0: np.ndarray,
+        p: np.ndarray,
         lbg: np.ndarray,
         ubg: np.ndarray,
         lam_g0: np.ndarray | None,
@@ -130,8 +130,9 @@ class CondensedModel:
         """The commands of ``w0`` (clipped to their bounds), the row bounds of this
         solve, and the starting multipliers with the QP's memory of active rows:
         forgotten on a cold start, moved a stage on with the last step's multipliers."""
-        self.lbc = np.concatenate([lbg[self.keep], self.lb_state])
-        self.ubc = np.concatenate([ubg[self.keep], self.ub_state])
+        lbw, ubw = self.tr.variable_bounds(p)  # the state box, widened where it must be
+        self.lbc = np.concatenate([lbg[self.keep], lbw[self.state_idx]])
+        self.ubc = np.concatenate([ubg[self.keep], ubw[self.state_idx]])
         lam_c, lam_u = np.zeros(self.nc), np.zeros(self.nU)
         if lam_g0 is not None and lam_x0 is not None:
             lam_c[: self.nk] = np.asarray(lam_g0)[self.keep]
@@ -221,8 +222,9 @@ class CondensedModel:
         model rows' stay 0: condensed away)."""
         tr, nx, N = self.tr, self.tr.nx, self.tr.N
         Um = v.reshape(N, nx)
-        X = np.vstack([p[:nx], p[:nx] + tr.problem.dt * np.cumsum(Um, axis=0)])
-        w = tr.pack(X, Um, p[nx : 2 * nx])
+        w = np.empty(tr.w.numel())
+        w[tr.index_z] = tr.model.rollout(p[: tr.nz], Um)
+        w[tr.index_u] = Um
         lam_g = np.zeros(tr.g.numel())
         lam_g[self.keep] = lam_c[: self.nk]
         lam_x = np.zeros(tr.w.numel())

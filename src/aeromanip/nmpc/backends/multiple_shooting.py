@@ -27,10 +27,13 @@ from aeromanip.nmpc.backends.qp import QpResult
 from aeromanip.nmpc.backends.qp_model import Linearization
 from aeromanip.nmpc.transcription import COUPLING, Transcription
 
+# HPIPM rarely reaches residuals of 1e-10 on these QPs: it then runs all its iterations
+# (at N = 50 ~1.5 ms each), though its answer stopped improving after ~10; with looser
+# tolerances (1e-8) the SQP with the exact Hessian stalls on the inexact steps
 HPIPM_OPTIONS: dict[str, Any] = {
     "hpipm": {
         "mode": "robust",
-        "iter_max": 100,
+        "iter_max": 25,
         **dict.fromkeys(("res_g_max", "res_b_max", "res_d_max", "res_m_max"), 1e-10),
     }
 }
@@ -97,7 +100,9 @@ class MultipleShootingModel:
             cost = sm.cost if name == "stage" else sm.terminal_cost
             res = (sm.residuals if name == "stage" else sm.terminal_residuals)(*args)
             r = ca.densify(res[0] if isinstance(res, tuple | list) else res)
-            parts[name] = (args, s, r, ca.densify(self._stage_expr(cost(*args), res)))
+            accel = sm.accel(z, u) if name == "stage" and sm.accel is not None else ca.SX(0, 1)
+            rows = ca.vertcat(self._stage_expr(cost(*args), res), accel)
+            parts[name] = (args, s, r, ca.densify(rows))
         n_lam = max(parts["stage"][3].numel(), parts["terminal"][3].numel(), 1)
         lam = ca.SX.sym("lam", n_lam)
         with_exact = self.opts["hessian"] != "gauss-newton" and not self.opts["rti"]
@@ -132,8 +137,9 @@ class MultipleShootingModel:
             raise ConfigError("solver_options.qpsol: hpipm: the stage rows do not match")
 
     def _stage_expr(self, cost: Any, res: Any) -> ca.SX:
-        """A stage's non-gap rows as the transcription orders them: path, then per
-        higher level its cost (``stagewise``) or its residuals (``strict``/``residual``)."""
+        """A stage's path and hierarchy rows as the transcription orders them: path,
+        then per higher level its cost (``stagewise``) or its residuals (``strict``/
+        ``residual``); the command-rate rows follow."""
         _, hier, path, _ = cost
         groups = list(res[1:]) if isinstance(res, tuple | list) else []
         stagewise = self.tr.mode == "stagewise"
@@ -143,14 +149,11 @@ class MultipleShootingModel:
     def _pattern(self) -> None:
         """The QP's sparsity (block-diagonal Hessian; gap rows and stage rows) and the
         maps from per-stage blocks to the solver's nonzeros; the HPIPM solver."""
-        N, ns, nz, nx, dt = self.N, self.ns, self.nz, self.nx, self.tr.problem.dt
+        N, ns, nz, model = self.N, self.ns, self.nz, self.tr.model
         blocks = [ca.DM.ones(ns, ns)] * N + [ca.DM.ones(nz, nz)]
         self.H_sp = ca.diagcat(*blocks).sparsity()
         rows, cols, vals = [], [], []  # every entry of A, in our fill order
-        gap = np.zeros((nz, ns))  # d(gap)/d(z_k, u_k): -[I dt I; 0 I]
-        gap[:nx, :nx] = -np.eye(nx)
-        gap[:nx, nz:] = -dt * np.eye(nx)
-        gap[nx:, nz:] = -np.eye(nx)
+        gap = -np.hstack([model.A, model.B])  # d(gap)/d(z_k, u_k) (the model is linear)
         self.gap_block = gap
         for k in range(N):
             r0, c0 = self.gap_rows[k * nz], k * ns
@@ -193,16 +196,15 @@ class MultipleShootingModel:
         N, ns, nz = self.N, self.ns, self.nz
         S = v[: N * ns].reshape(N, ns)
         npk = self.tr.problem.param_size
-        P = p[2 * self.nx :]
+        P = p[nz:]
         return S[:, :nz].ravel(), S[:, nz:].ravel(), P[: N * npk], v[N * ns :], P[N * npk :]
 
     def _gaps(self, v: np.ndarray) -> np.ndarray:
-        """The gap rows' values ``z[k+1] - [x[k] + dt u[k]; u[k]]`` (stage-major)."""
-        N, ns, nz, nx = self.N, self.ns, self.nz, self.nx
+        """The gap rows' values ``z[k+1] - (A z[k] + B u[k])`` (stage-major)."""
+        N, ns, nz = self.N, self.ns, self.nz
         S = v[: N * ns].reshape(N, ns)
         nxt = np.vstack([v[ns : N * ns].reshape(N - 1, ns)[:, :nz], v[N * ns :][None]])
-        pred = np.hstack([S[:, :nx] + self.tr.problem.dt * S[:, nz:], S[:, nz:]])
-        return (nxt - pred).ravel()
+        return (nxt + S @ self.gap_block.T).ravel()
 
     def _rows_values(self, c: np.ndarray, cT: np.ndarray, v: np.ndarray) -> np.ndarray:
         """``g(v)`` in the transcription's order from the stage rows and the gaps."""
@@ -219,6 +221,7 @@ class MultipleShootingModel:
     def start(
         self,
         w0: np.ndarray,
+        p: np.ndarray,
         lbg: np.ndarray,
         ubg: np.ndarray,
         lam_g0: np.ndarray | None,
@@ -236,8 +239,7 @@ class MultipleShootingModel:
         return np.asarray(w0, dtype=float).copy(), lam_c, lam_v
 
     def _bounds(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        nx = self.nx
-        return self.tr.variable_bounds(p[:nx], p[nx : 2 * nx])
+        return self.tr.variable_bounds(p)
 
     def linearize(self, v: np.ndarray, p: np.ndarray) -> Linearization:
         """Stage residuals, rows and Jacobians; cost, gradient and ``g`` assembled."""

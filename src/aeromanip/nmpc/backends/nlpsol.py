@@ -102,8 +102,7 @@ class NlpBackend(Backend):
         """Solve from the initial guess ``w0`` and, if given, the multipliers of the last
         control step (moved a stage on here, as ``w0`` is by the caller; ``shift=False``:
         multipliers of this very step, used as they are)."""
-        nx = self.tr.nx
-        lbw, ubw = self.tr.variable_bounds(p[:nx], p[nx : 2 * nx])
+        lbw, ubw = self.tr.variable_bounds(p)
         args: dict[str, Any] = {"x0": w0, "p": p, "lbx": lbw, "ubx": ubw, "lbg": lbg, "ubg": ubg}
         if lam_g0 is not None:
             args["lam_g0"] = np.asarray(lam_g0)[self.tr.shift_g] if shift else lam_g0

@@ -36,6 +36,7 @@ class QpModel(Protocol):
     def start(
         self,
         w0: np.ndarray,
+        p: np.ndarray,
         lbg: np.ndarray,
         ubg: np.ndarray,
         lam_g0: np.ndarray | None,
@@ -44,7 +45,8 @@ class QpModel(Protocol):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The first iterate ``v`` (from the NLP guess ``w0``, inside the variable bounds)
         and multipliers ``lam_c``, ``lam_v`` (the last step's, moved a stage on with
-        ``shift``); the row bounds ``lbg, ubg`` are kept for this solve."""
+        ``shift``); the row bounds ``lbg, ubg`` and the variable bounds for the
+        parameters ``p`` are kept for this solve."""
         ...
 
     def linearize(self, v: np.ndarray, p: np.ndarray) -> Linearization:

@@ -209,8 +209,8 @@ class SqpBackend(Backend):
         moved a stage on here (``shift=False``: this step's)."""
         t0 = time.perf_counter()
         o, model = self.opts, self.model
-        v, lam_c, lam_v = model.start(w0, lbg, ubg, lam_g0, lam_x0, shift)
         p = np.asarray(p, dtype=float)
+        v, lam_c, lam_v = model.start(w0, p, lbg, ubg, lam_g0, lam_x0, shift)
         mu, it, status, ok, f = 0.0, 0, "", False, np.nan
         exact = o["hessian"] == "exact"
         max_iter = 1 if o["rti"] else int(o["max_iter"])

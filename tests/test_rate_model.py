@@ -1,0 +1,273 @@
+"""The prediction model with rate responses, command-rate bounds, latency compensation and
+time-scaled weights (issue 13), each checked against a truth computed here: the ODE
+integrated by RK4, IPOPT on the same NLP, the kinematic simulator, a Riemann sum.
+"""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from aeromanip.experiment.closed_loop import simulate
+from aeromanip.experiment.scenario import load_scenarios
+from aeromanip.nmpc.constraints import Bounds
+from aeromanip.nmpc.controller import Controller
+from aeromanip.nmpc.model import RateModel
+from aeromanip.nmpc.problem import Problem
+from aeromanip.nmpc.strategies import Weighted
+from aeromanip.references import Constant
+from aeromanip.robot.loader import load_robot
+from aeromanip.sim.kinematic import KinematicSimulator
+from aeromanip.tasks import ControlRate, EndEffectorTracking
+
+X8 = load_robot("x8-3dof")
+X0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
+TAU = np.array([0.3, 0.25, 0.2, 0.08, 0.0, 0.0, 0.01])  # s; two DoFs follow at once
+ACCEL = np.array([0.5, 0.5, 0.5, 1.0, 2.0, 2.0, 2.0])  # m/s^2, rad/s^2
+
+
+def rk4_truth(x, r, u, tau, h, substeps=4000):
+    """``dx/dt = r``, ``dr/dt = (u - r) / tau`` (``r = u`` where ``tau = 0``), by RK4."""
+    x, r, u = (np.array(a, dtype=float) for a in (x, r, u))
+    lag = tau > 0
+    r = np.where(lag, r, u)
+    dt = h / substeps
+
+    def f(xr):
+        _xx, rr = xr[: len(x)], xr[len(x) :]
+        dr = np.zeros_like(rr)
+        dr[lag] = (u[lag] - rr[lag]) / tau[lag]
+        return np.concatenate([np.where(lag, rr, u), dr])
+
+    s = np.concatenate([x, r])
+    for _ in range(substeps):
+        k1 = f(s)
+        k2 = f(s + 0.5 * dt * k1)
+        k3 = f(s + 0.5 * dt * k2)
+        k4 = f(s + dt * k3)
+        s = s + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return s[: len(x)], np.where(lag, s[len(x) :], u)
+
+
+def test_one_step_of_the_model_is_the_ode_held_over_the_period():
+    rng = np.random.default_rng(1)
+    model = RateModel(7, 0.1, TAU)
+    lag = TAU > 0
+    assert model.nz == 14 + lag.sum() and model.has_response  # rates of lagging DoFs only
+    for _ in range(3):
+        x, v, r, u = (rng.normal(size=7) for _ in range(4))
+        z1 = model.A @ np.concatenate([x, v, r[lag]]) + model.B @ u
+        x_true, r_true = rk4_truth(x, r, u, TAU, 0.1)
+        np.testing.assert_allclose(z1[:7], x_true, atol=1e-10)
+        np.testing.assert_allclose(z1[7:14], u, atol=0)  # v: the command just applied
+        np.testing.assert_allclose(z1[14:], r_true[lag], atol=1e-10)
+        np.testing.assert_allclose(model.rates_of(z1), r_true, atol=1e-10)
+        # the symbolic step is the same map
+        zs, us = ca.SX.sym("z", model.nz), ca.SX.sym("u", 7)
+        step = ca.Function("step", [zs, us], [model.next_sx(zs, us)])
+        np.testing.assert_allclose(
+            np.asarray(step(np.concatenate([x, v, r[lag]]), u)).ravel(), z1, atol=1e-14
+        )
+
+
+def test_prediction_over_two_intervals_is_the_prediction_over_their_sum():
+    model = RateModel(7, 0.1, TAU)
+    z = np.random.default_rng(2).normal(size=model.nz)
+    u = np.linspace(-1, 1, 7)
+    twice = model.predict(model.predict(z, u, 0.013), u, 0.029)
+    np.testing.assert_allclose(twice, model.predict(z, u, 0.042), atol=1e-14)
+
+
+def test_without_time_constants_it_is_the_papers_model():
+    model = RateModel(7, 0.5)
+    assert model.nz == 14 and not model.has_response
+    z = np.concatenate([X0, np.zeros(7)])
+    u = np.arange(7.0)
+    np.testing.assert_allclose(model.A @ z + model.B @ u, np.concatenate([X0 + 0.5 * u, u]))
+
+
+@pytest.mark.parametrize("tau", [[-0.1] + [0.0] * 6, [np.nan] + [0.0] * 6, [0.1] * 6])
+def test_bad_time_constants_are_refused(tau):
+    with pytest.raises(Exception, match=r"response\.tau"):
+        RateModel(7, 0.1, np.array(tau))
+
+
+def problem(tau=TAU, accel=ACCEL, horizon=8, dt=0.1, weights_dt=None, target=(0.4, 0.3, 0.5)):
+    bounds = Bounds.from_robot(X8).with_accel(accel)
+    pb = Problem(X8, horizon, dt, bounds, response_tau=tau, weights_dt=weights_dt)
+    pb.add_task(EndEffectorTracking(Constant(list(target))), weight=10.0, level=0)
+    pb.add_task(ControlRate(), weight=0.05, terminal_weight=0.5, level=None)
+    return pb
+
+
+def test_the_nlps_gap_rows_close_exactly_on_a_model_rollout_and_measure_the_ode_error():
+    pb = problem()
+    w = Weighted(pb, "ipopt")
+    tr = w.transcription
+    rng = np.random.default_rng(3)
+    U = rng.normal(scale=0.2, size=(pb.horizon, 7))
+    u_prev, rates = rng.normal(size=7), rng.normal(size=7)
+    Z = pb.model.rollout(pb.model.initial(X0, u_prev, rates), U)
+    wv = tr.pack(Z[:, :7], U, u_prev, rates)
+    p = tr.parameters(X0, u_prev, pb.stage_params(0.0), rates)
+    g = np.asarray(ca.Function("g", [tr.w, tr.p], [tr.g])(wv, p)).ravel()
+    assert np.abs(g[tr.gap_rows]).max() < 1e-12
+    # the gaps of an RK4 trajectory are RK4's error: tiny
+    x_true, _r_true = rk4_truth(X0, rates, U[0], TAU, pb.dt)
+    wv2 = wv.copy()
+    wv2[tr.index_x[1]] = x_true
+    g2 = np.asarray(ca.Function("g", [tr.w, tr.p], [tr.g])(wv2, p)).ravel()
+    assert np.abs(g2[tr.gap_rows]).max() < 1e-10
+
+
+@pytest.mark.parametrize(
+    "backend, options",
+    [("sqp", {"qpsol": "daqp"}), ("sqp", {"qpsol": "hpipm"}), ("fatrop", {})],
+)
+def test_every_backend_finds_ipopts_optimum_with_responses_and_command_rate_bounds(
+    backend, options
+):
+    pb = problem()
+    ref = Controller(pb, "weighted", "ipopt")
+    ctrl = Controller(pb, "weighted", backend, options)
+    rates = np.array([0.2, -0.1, 0.05, 0.0, 0.1, 0.0, -0.2])
+    a, b = ref.step(X0, 0.0, rates), ctrl.step(X0, 0.0, rates)
+    assert a.status == b.status == "ok"
+    np.testing.assert_allclose(b.plan_u, a.plan_u, atol=2e-4)
+    np.testing.assert_allclose(b.plan_x, a.plan_x, atol=2e-5)
+    # the bounds bind (a far target, from rest): |u[k] - u[k-1]| <= a dt, u[-1] = 0
+    steps = np.abs(np.diff(np.vstack([np.zeros(7), a.plan_u]), axis=0))
+    assert np.all(steps <= ACCEL * pb.dt + 1e-6)
+    assert np.any(steps >= ACCEL * pb.dt - 1e-6)
+
+
+def test_command_rate_bounds_hold_at_every_step_of_a_closed_loop():
+    sc = load_scenarios(
+        "waypoints",
+        [
+            "duration=6",
+            "controller.dt=0.1",
+            "controller.horizon=20",
+            "controller.backend='sqp'",
+            "bounds.acceleration={x=0.01, y=0.01, z=0.01, yaw=0.02, default=0.02}",
+        ],
+        only="tracking-only",
+    )["tracking-only"]
+    log = simulate(sc)
+    cmds = np.column_stack([log.column(f"u_{n}") for n in sc.robot.state_names])
+    steps = np.abs(np.diff(np.vstack([np.zeros(cmds.shape[1]), cmds]), axis=0))
+    limit = np.array([0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 0.02]) * 0.1
+    assert set(log.column("status")) == {"ok"}
+    assert np.all(steps <= limit + 1e-6), np.max(steps - limit)
+    assert np.mean(np.any(steps >= limit - 1e-6, axis=1)) > 0.05  # they bind
+
+
+def test_a_compensated_latency_plans_from_the_state_reached_when_the_command_lands():
+    pb = problem(tau=None, accel=None, horizon=6)
+    lag = 0.03
+    ctrl = Controller(pb, "weighted", "ipopt", latency_s=lag)
+    sim = KinematicSimulator(X8)
+    sim.reset(X0)
+    held = np.zeros(7)
+    for k in range(4):
+        cmd = ctrl.step(sim.state(), 0.1 * k)
+        sim.advance(held, X0, lag)  # the previous command flies until the new one lands
+        np.testing.assert_allclose(cmd.plan_x[0], sim.state(), atol=1e-12)
+        sim.advance(cmd.u, cmd.plan_x, 0.1 - lag)
+        held = cmd.u
+
+
+def test_latency_must_be_shorter_than_the_period():
+    with pytest.raises(Exception, match="latency"):
+        Controller(problem(), "weighted", "ipopt", latency_s=0.1)
+
+
+def stage_cost_totals(dt, weights_dt):
+    """Tracking and control-rate stage costs of one smooth motion sampled every ``dt``."""
+    horizon = round(2.0 / dt)
+    pb = problem(tau=None, accel=None, horizon=horizon, dt=dt, weights_dt=weights_dt)
+    tr = Weighted(pb, "ipopt").transcription
+    t = dt * np.arange(horizon + 1)
+    X = np.repeat(X0[None], horizon + 1, axis=0)
+    X[:, 0] += 0.3 * np.sin(1.3 * t)  # the platform sways along x
+    U = np.diff(X, axis=0) / dt
+    p = tr.parameters(X0, U[0], pb.stage_params(0.0))
+    C = tr.costs(tr.pack(X, U, U[0]), p)  # tasks x stages (terminal last)
+    return C[0, :-1].sum(), C[1, :-1].sum()
+
+
+def test_time_scaled_weights_keep_the_cost_a_time_integral_whatever_the_period():
+    coarse, fine = stage_cost_totals(0.1, 0.5), stage_cost_totals(0.025, 0.5)
+    np.testing.assert_allclose(fine, coarse, rtol=0.1)  # Riemann sums of one integral
+    raw_coarse, raw_fine = stage_cost_totals(0.1, None), stage_cost_totals(0.025, None)
+    assert raw_fine[0] / raw_coarse[0] > 3.5  # per-step weights: 4x the stages
+    assert raw_fine[1] / raw_coarse[1] < 0.3  # and 1/4 of each step's change, squared x4
+
+
+def test_weights_tuned_at_the_period_flown_are_taken_as_they_are():
+    np.testing.assert_allclose(stage_cost_totals(0.1, 0.1), stage_cost_totals(0.1, None))
+
+
+def boxed_problem(horizon=20):
+    """``problem()`` with the platform in a box ``|x|, |y| <= 0.5`` m, ``z`` in [0.5, 1.5]."""
+    b = Bounds.from_robot(X8)
+    lo, hi = b.x_lower.copy(), b.x_upper.copy()
+    lo[:3], hi[:3] = [-0.5, -0.5, 0.5], [0.5, 0.5, 1.5]
+    bounds = Bounds(b.names, lo, hi, b.u_lower, b.u_upper, ACCEL)
+    pb = Problem(X8, horizon, 0.1, bounds, response_tau=TAU)
+    pb.add_task(EndEffectorTracking(Constant([0.3, 0.0, 0.5])), weight=10.0, level=0)
+    pb.add_task(ControlRate(), weight=0.05, terminal_weight=0.5, level=None)
+    return pb
+
+
+@pytest.mark.parametrize(
+    "backend, options",
+    [("sqp", {"qpsol": "daqp"}), ("sqp", {"qpsol": "hpipm"}), ("ipopt", {})],
+)
+def test_a_state_carried_out_of_its_box_by_its_rates_is_brought_back_not_given_up(backend, options):
+    pb = boxed_problem(horizon=30)
+    x0 = X0.copy()
+    x0[0] = 0.501  # 1 mm beyond the box, still moving out: rate lag and command-rate bound
+    u_prev = np.array([0.2, 0, 0, 0, 0, 0, 0.0])
+    # hand computation: the least x reachable at the next stage, the command cut as far
+    # as allowed (u = 0.3 - 0.5 * 0.1), lies outside the box: no plan keeps the hard box
+    a = np.exp(-0.1 / 0.3)
+    u = 0.2 - ACCEL[0] * 0.1
+    assert x0[0] + 0.1 * u + 0.3 * (1 - a) * (0.2 - u) > 0.5
+    ctrl = Controller(pb, "weighted", backend, options)
+    ctrl.u_prev = u_prev  # the last command, flown at its actual rate
+    cmd = ctrl.step(x0, 0.0, u_prev)
+    assert cmd.status == "ok", cmd.message
+    assert "state box widened: x +" in cmd.message
+    X = cmd.plan_x
+    assert X[1, 0] > 0.5  # it has to go out further ...
+    assert X[-1, 0] <= 0.5 + 1e-6  # ... and is planned back into its box by the end
+    steps = np.abs(np.diff(np.vstack([u_prev, cmd.plan_u]), axis=0))
+    assert np.all(steps <= ACCEL * pb.dt + 1e-6)
+
+
+def test_the_box_is_left_as_it_is_wherever_a_plan_can_keep_it():
+    pb = boxed_problem()
+    tr = Weighted(pb, "ipopt").transcription
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0), np.zeros(7))
+    lbw, ubw = tr.variable_bounds(p)
+    idx = tr.index_x[1:]
+    np.testing.assert_array_equal(lbw[idx], tr.lbw[idx])
+    np.testing.assert_array_equal(ubw[idx], tr.ubw[idx])
+    assert not np.any(tr.box_widening(p))
+    # moving out fast near the wall: widened by no less than the least overshoot any plan
+    # has (full deceleration down to the rate bound) and no more than a plain stop's
+    x0, v = X0.copy(), np.array([0.0, -0.8, 0, 0, 0, 0, 0])
+    x0[1] = -0.45
+    p = tr.parameters(x0, v, pb.stage_params(0.0), v)
+    cut = ACCEL[1] * pb.dt * np.arange(1, pb.horizon + 1)
+
+    def lowest_y(commands):
+        U = np.zeros((pb.horizon, 7))
+        U[:, 1] = commands
+        return pb.model.rollout(pb.model.initial(x0, v, v), U)[1:, 1].min()
+
+    least = -0.5 - lowest_y(np.minimum(-0.8 + cut, pb.bounds.u_upper[1]))
+    stop = -0.5 - lowest_y(np.minimum(-0.8 + cut, 0.0))
+    wide = tr.box_widening(p)
+    assert 0 < least <= wide[1] <= stop
+    assert not np.any(np.delete(wide, 1))
