@@ -12,9 +12,9 @@ import pytest
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.identification import identify
 from aeromanip.experiment.scenario import load_scenarios
+from aeromanip.experiment.step_response import record_step
 from aeromanip.robot.loader import load_robot
 from aeromanip.sim.base import Simulator
-from aeromanip.experiment.step_response import record_step
 from aeromanip.sim.physics import PhysicsSimulator
 
 X8 = load_robot("x8-3dof")
