@@ -26,6 +26,10 @@ ALLOWED: dict[str, set[str]] = {
     "sim": BASE | {"robot"},
     "experiment": BASE | {"references", "robot", "tasks", "nmpc", "sim"},
     "bench": BASE | {"references", "robot", "tasks", "nmpc", "sim", "experiment"},
+    # the real-time loop (wall clock, transports' interface): beside bench, above experiment
+    "runtime": BASE | {"references", "robot", "tasks", "nmpc", "sim", "experiment"},
+    # MAVLink: the runtime's transport and the SITL autopilot; only the command line imports it
+    "mavlink": BASE | {"references", "robot", "tasks", "nmpc", "sim", "experiment", "runtime"},
     "robots": set(),  # built-in TOML files
     "scenarios": set(),
 }

@@ -1,4 +1,5 @@
-"""Command line: ``aeromanip run | list | plot | bench`` (one module per command).
+"""Command line: ``aeromanip run | list | plot | bench | fly | sitl ...`` (one module per
+command).
 
 Errors a user can cause (unknown names, bad values, malformed files) print one line and
 exit with code 2, without a traceback. A run that did not fly exits 3; a run stopped by
@@ -11,7 +12,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from aeromanip.cli import bench, identify, listing, plot
+from aeromanip.cli import bench, fly, identify, listing, plot, sitl
 from aeromanip.cli import run as run_command
 from aeromanip.errors import AeromanipError
 from aeromanip.interrupts import RunInterrupted, stop_on_signals
@@ -31,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="aeromanip", description="NMPC for aerial manipulators (Lunni et al., ICUAS 2017)"
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    for command in (run_command, plot, listing, bench, identify):
+    for command in (run_command, plot, listing, bench, identify, fly, sitl):
         command.add_parser(sub)
     return parser
 

@@ -1,0 +1,220 @@
+"""The real-time loop: the scenario's controller flying a vehicle through a transport.
+
+``RealtimeFlight.fly(sink)``: wait for the autopilot and the first state; stream hold
+setpoints for ``PRE_STREAM_S`` (PX4 takes offboard only after a second of stream); arm
+and switch to offboard, each checked; then every control period ``dt`` (wall clock):
+read the latest state, predict it forward by its age (``Measurement.predicted``), run
+``Controller.step`` (its ``latency_s`` predicts on to when the command takes effect) and
+hand the plan to the follower, which the streaming thread follows at ``STREAM_HZ``.
+
+Deadlines: a solve longer than ``dt`` is a deadline miss: its plan is dropped (the
+previous one keeps flying) and the miss counted; so is a step that starts more than a
+period late (it is skipped). Each row logs the state's age, the step's wall time, the
+miss and the setpoints streamed over the period before it.
+
+Endings: the mission done, or a signal (Ctrl-C): hold where the vehicle is (platform in
+place, arm still) and switch the autopilot to hold (checked); the link lost
+(``Streamer``) or the autopilot out of offboard (a pilot took over): ``LinkError``,
+nothing more commanded.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from aeromanip.experiment.closed_loop import RowMaker, make_controller
+from aeromanip.experiment.scenario import Scenario
+from aeromanip.interrupts import deferred, raise_if_interrupted
+from aeromanip.runtime.follower import GAIN, Plan, PlanFollower
+from aeromanip.runtime.measure import Measurement, MissionClock, StateReader
+from aeromanip.runtime.streamer import LINK_LOSS_S, STREAM_HZ, Streamer
+from aeromanip.runtime.transport import ArmInterface, LinkError, Transport
+
+CONNECT_TIMEOUT_S = 15.0  # [s] wait for the autopilot's heartbeat and first state
+PRE_STREAM_S = 1.5  # [s] setpoints streamed before asking for offboard (PX4: > 1 s)
+COMMAND_TIMEOUT_S = 3.0  # [s] wait for a COMMAND_ACK
+RUNTIME_COLUMNS = ("state_age_ms", "step_ms", "deadline_miss", "setpoints", "setpoint_gap_ms")
+
+Row = dict[str, Any]
+
+
+@dataclass
+class FlightStats:
+    """What the runtime measured: steps flown, deadline misses, link loss."""
+
+    steps: int = 0
+    deadline_misses: int = 0
+    link_lost: bool = False
+    link_lost_age_s: float = math.nan
+    link_lost_wall: float = math.nan
+    start_wall: float = math.nan
+    ending: str = ""
+    hold_ack: bool = False
+    state_ages_ms: list[float] = field(default_factory=list)
+    setpoint_rate_hz: float = math.nan
+    setpoint_gap_max_ms: float = math.nan
+
+    def summary(self) -> dict[str, Any]:
+        """The runtime's keys of ``summary.json``."""
+        ages = np.array(self.state_ages_ms) if self.state_ages_ms else np.array([math.nan])
+        return {
+            "deadline_misses": self.deadline_misses,
+            "link_lost": self.link_lost,
+            "link_lost_state_age_s": self.link_lost_age_s,
+            "link_lost_wall_time": self.link_lost_wall,
+            "start_wall_time": self.start_wall,
+            "ending": self.ending,
+            "hold_accepted": self.hold_ack,
+            "state_age_ms_median": float(np.median(ages)),
+            "state_age_ms_max": float(np.max(ages)),
+            "setpoint_rate_hz": self.setpoint_rate_hz,
+            "setpoint_gap_max_ms": self.setpoint_gap_max_ms,
+        }
+
+
+class RealtimeFlight:
+    """The scenario ``sc`` flown in real time over ``transport`` and ``arm``."""
+
+    def __init__(
+        self,
+        sc: Scenario,
+        transport: Transport,
+        arm: ArmInterface,
+        stream_hz: float = STREAM_HZ,
+        loss_s: float = LINK_LOSS_S,
+        gain: float = GAIN,
+    ) -> None:
+        self.sc, self.transport, self.arm = sc, transport, arm
+        self.ctrl = make_controller(sc)
+        self.maker = RowMaker(sc)
+        self.follower = PlanFollower(sc.robot, gain)
+        self.reader = StateReader(sc.robot, transport, arm)
+        self.clock = MissionClock()
+        self.streamer = Streamer(
+            transport, arm, self.follower, self.reader, self.clock, stream_hz, loss_s
+        )
+        self.stats = FlightStats()
+
+    def fly(self, sink: Callable[[Row], None]) -> FlightStats:
+        """Fly the mission, handing a row per step to ``sink``; ``LinkError`` if the link
+        is lost or the autopilot refuses, ``RunInterrupted`` on a signal (holding)."""
+        self.transport.connect(CONNECT_TIMEOUT_S)
+        m = self._first_state()
+        self.follower.hold(m.x)
+        self.streamer.start()
+        try:
+            self._sleep_until(time.monotonic() + PRE_STREAM_S)
+            self.transport.arm(COMMAND_TIMEOUT_S)
+            self.transport.set_mode("offboard", COMMAND_TIMEOUT_S)
+            self.clock.start()
+            self.stats.start_wall = time.time()
+            self._steps(sink)
+            self.stats.ending = "completed"
+            self._hold()
+        except LinkError:
+            if self.streamer.lost.is_set():
+                self._record_loss()
+            raise
+        except KeyboardInterrupt:
+            self.stats.ending = "interrupted"
+            self._hold()
+            raise
+        finally:
+            self._stream_stats()
+            self.streamer.stop()
+        return self.stats
+
+    def _first_state(self) -> Measurement:
+        end = time.monotonic() + CONNECT_TIMEOUT_S
+        while (m := self.reader.read()) is None:
+            if time.monotonic() > end:
+                raise LinkError(f"no vehicle state and joints within {CONNECT_TIMEOUT_S:g} s")
+            time.sleep(0.01)
+        return m
+
+    def _sleep_until(self, deadline: float) -> None:
+        """Wait until ``deadline`` [s, monotonic], raising on link loss or a signal."""
+        while True:
+            if self.streamer.lost.is_set():
+                self._record_loss()
+                raise LinkError(f"link lost: no vehicle state for {self.streamer.lost_age:.2f} s")
+            raise_if_interrupted()
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            self.streamer.lost.wait(min(left, 0.05))
+
+    def _record_loss(self) -> None:
+        s = self.stats
+        s.link_lost, s.ending = True, "link lost"
+        s.link_lost_age_s, s.link_lost_wall = self.streamer.lost_age, self.streamer.lost_wall
+
+    def _steps(self, sink: Callable[[Row], None]) -> None:
+        dt, lag = self.sc.problem.dt, self.ctrl.latency_s
+        rates_used = self.ctrl.problem.model.has_response
+        k, last = 0, self.clock.at(0.0)
+        while k < self.sc.steps:
+            self._sleep_until(self.clock.at(k * dt))
+            now = time.monotonic()
+            if now - self.clock.at(k * dt) > dt:  # a whole period late: skip, count it
+                self.stats.deadline_misses += 1
+                k = math.floor((now - self.clock.at(0.0)) / dt) + 1
+                continue
+            if (mode := self.transport.mode()) != "offboard":  # e.g. the pilot took over
+                raise LinkError(f"the autopilot left offboard (now {mode}): not commanding")
+            m = self.reader.read()
+            if m is None:
+                raise LinkError("no vehicle state")
+            x, t = m.predicted(now), self.clock.now()
+            c0 = time.perf_counter()
+            with deferred():
+                cmd = self.ctrl.step(x, t, m.rates if rates_used else None)
+            step_s = time.perf_counter() - c0
+            miss = step_s > dt
+            if miss:
+                self.stats.deadline_misses += 1
+            else:
+                self.follower.follow(Plan(t + lag, cmd.plan_x, cmd.plan_u, dt))
+            count, gap = self.streamer.rate_between(last, now)
+            row = self.maker.row(t, x, None, cmd)
+            age_ms = 1e3 * m.age(now)
+            self.stats.state_ages_ms.append(age_ms)
+            row.update(
+                state_age_ms=age_ms,
+                step_ms=1e3 * step_s,
+                deadline_miss=float(miss),
+                setpoints=count,
+                setpoint_gap_ms=1e3 * gap,
+            )
+            sink(row)
+            last, k = now, k + 1
+            self.stats.steps += 1
+
+    def _hold(self) -> None:
+        """Hold where the vehicle is, arm still, and switch the autopilot to hold."""
+        with deferred():
+            m = self.reader.read()
+            if m is not None:
+                self.follower.hold(m.x)
+            try:
+                self.transport.set_mode("hold", COMMAND_TIMEOUT_S)
+                self.stats.hold_ack = True
+            except LinkError as e:
+                print(f"aeromanip: hold not confirmed: {e}", file=sys.stderr)
+
+    def _stream_stats(self) -> None:
+        sent = self.streamer.sent
+        if self.clock.t0 is None or len(sent) < 2:
+            return
+        flown = [s for s in sent if s >= self.clock.t0]
+        if len(flown) >= 2:
+            self.stats.setpoint_rate_hz = (len(flown) - 1) / (flown[-1] - flown[0])
+            gaps = np.diff(flown)
+            self.stats.setpoint_gap_max_ms = 1e3 * float(gaps.max())

@@ -1,0 +1,81 @@
+"""A real-time flight into a run directory (the output contract), streamed and staged
+like ``aeromanip run``'s (``experiment.rundir``): ``config.toml``, ``robot.urdf``,
+``robot.xml``, ``log.csv`` + ``meta.json`` as it flies, then ``summary.json`` (with the
+runtime's keys: deadline misses, setpoint rate, state age, link loss) and, when the
+mission completed, ``figures/``. Whatever ends the flight (done, link lost, a signal),
+what it flew is summarised and moved into place.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from aeromanip.experiment.closed_loop import log_columns, run_meta
+from aeromanip.experiment.logwriter import LogWriter
+from aeromanip.experiment.plots import plot_run
+from aeromanip.experiment.rundir import RunDirectory
+from aeromanip.experiment.runlog import LOG_FILE, RunLog, write_summary
+from aeromanip.experiment.runner import summarize, write_static_files
+from aeromanip.interrupts import RunInterrupted, deferred
+from aeromanip.interrupts import clear as clear_interrupts
+from aeromanip.runtime.loop import RUNTIME_COLUMNS, RealtimeFlight
+from aeromanip.runtime.transport import LinkError
+
+
+class _NoSimulator:
+    """The run log's columns need a simulator's extras: a vehicle reports none."""
+
+    def extras(self) -> dict[str, float]:
+        return {}
+
+
+@dataclass
+class SessionResult:
+    """How a flight ended: its summary, where it lies, and what stopped it (if anything)."""
+
+    summary: dict[str, Any]
+    out_dir: Path
+    error: LinkError | None = None
+    interrupted: RunInterrupted | None = None
+
+
+def fly_session(
+    flight: RealtimeFlight, out: Path, link: str, figures: bool = True
+) -> SessionResult:
+    """Fly ``flight`` into run directory ``out``; ``link`` is recorded in the summary."""
+    sc = flight.sc
+    error, interrupted = None, None
+    with RunDirectory(out) as rd:
+        write_static_files(sc, rd.staging)
+        columns = [*log_columns(sc, _NoSimulator()), *RUNTIME_COLUMNS]  # type: ignore[arg-type]
+        meta = run_meta(sc) | {"sim": "vehicle", "link": link}
+        try:
+            with LogWriter(rd.staging, columns, meta) as writer:
+                flight.fly(writer.write)
+        except LinkError as e:
+            error = e
+        except RunInterrupted as e:
+            interrupted = e
+            clear_interrupts()
+        with deferred():
+            summary = _summary(flight, rd.staging, link, interrupted is not None)
+            if error is not None:
+                summary["error"] = str(error)
+            write_summary(rd.staging, summary)
+            if figures and error is None and interrupted is None and summary["steps"]:
+                plot_run(RunLog.load(rd.staging), rd.staging / "figures")
+            out_dir = rd.commit()
+    return SessionResult(summary, out_dir, error, interrupted)
+
+
+def _summary(flight: RealtimeFlight, d: Path, link: str, interrupted: bool) -> dict[str, Any]:
+    sc = flight.sc
+    if (d / LOG_FILE).is_file() and len(log := RunLog.load(d)):
+        summary = summarize(sc, log, interrupted=interrupted)
+    else:
+        summary = {"scenario": sc.name, "steps": 0, "steps_planned": sc.steps}
+        summary["interrupted"] = interrupted
+    summary.update(flight.stats.summary(), sim="vehicle", link=link)
+    return summary
