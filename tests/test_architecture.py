@@ -25,7 +25,10 @@ ALLOWED: dict[str, set[str]] = {
     "nmpc": BASE | {"references", "robot", "tasks"},
     "sim": BASE | {"robot"},
     "experiment": BASE | {"references", "robot", "tasks", "nmpc", "sim"},
-    "bench": BASE | {"references", "robot", "tasks", "nmpc", "sim", "experiment"},
+    # replays and MCAP logs of saved runs; only bench (render speed) and the CLI import it
+    "viz": BASE | {"robot", "experiment"},
+    "bench": BASE | {"references", "robot", "tasks", "nmpc", "sim", "experiment", "viz"},
+    "sweep": BASE | {"experiment"},  # campaigns on Ray; only the command line imports it
     # the real-time loop (wall clock, transports' interface): beside bench, above experiment
     "runtime": BASE | {"references", "robot", "tasks", "nmpc", "sim", "experiment"},
     # MAVLink: the runtime's transport and the SITL autopilot; only the command line imports it

@@ -12,7 +12,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from aeromanip.cli import bench, fly, identify, listing, plot, sitl
+from aeromanip.cli import bench, fly, identify, listing, plot, replay, sitl, sweep
 from aeromanip.cli import run as run_command
 from aeromanip.errors import AeromanipError
 from aeromanip.interrupts import RunInterrupted, stop_on_signals
@@ -32,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="aeromanip", description="NMPC for aerial manipulators (Lunni et al., ICUAS 2017)"
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    for command in (run_command, plot, listing, bench, identify, fly, sitl):
+    for command in (run_command, plot, replay, listing, bench, identify, sweep, fly, sitl):
         command.add_parser(sub)
     return parser
 

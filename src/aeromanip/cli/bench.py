@@ -14,7 +14,14 @@ DURATION_S = 60.0  # [s] closed loop per controller variant
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the command."""
     p = sub.add_parser("bench", help="measure evaluation and controller step times")
-    p.add_argument("what", nargs="?", default="all", choices=["all", "kinematics", "controller"])
+    p.add_argument(
+        "what",
+        nargs="?",
+        default="all",
+        choices=["all", "kinematics", "controller", "render", "horizon"],
+        help="what to measure; 'horizon' (cold builds at N = 10..100, tens of minutes) "
+        "is not part of 'all'",
+    )
     p.add_argument(
         "--variant",
         action="append",
@@ -45,6 +52,16 @@ def _check_json_path(path: Path) -> None:
         raise ConfigError(f"--json: cannot write {path}: {e.strerror}") from None
 
 
+def _bench_render() -> dict:
+    """Replay rendering speed (needs the ``viz`` extra and an offscreen GL)."""
+    from aeromanip.bench.render import bench_render, format_render
+
+    r = bench_render()
+    print(format_render(r))
+    print()
+    return r
+
+
 def run(args: argparse.Namespace) -> int:
     """Measure and print (and write ``--json``)."""
     from aeromanip.bench.controller import VARIANTS, bench_controller, format_controller
@@ -70,6 +87,16 @@ def run(args: argparse.Namespace) -> int:
         r = bench_controller(names, duration=args.duration)
         results["controller"] = r
         print(format_controller(r))
+        print()
+    if args.what in ("render", "all"):
+        results["render"] = _bench_render()
+    if args.what == "horizon":
+        from aeromanip.bench.horizon import bench_horizon, format_horizon
+
+        print("horizon scaling, flight problem, 5 s horizon, cold builds in fresh processes:")
+        rows = bench_horizon()
+        results["horizon"] = rows
+        print(format_horizon(rows))
         print()
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2))

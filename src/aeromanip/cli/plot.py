@@ -33,7 +33,11 @@ def run(args: argparse.Namespace) -> int:
     root = Path(args.dir)
     if not root.is_dir():
         raise ConfigError(f"{root}: not a run directory")
-    if (root / LOG_FILE).is_file():
+    if (root / "results.csv").is_file():  # a sweep (aeromanip sweep): its campaign figures
+        from aeromanip.sweep.campaign import draw
+
+        paths = draw(root)
+    elif (root / LOG_FILE).is_file():
         paths = plot_run(RunLog.load(root, require_rows=True), root / "figures")
     else:
         runs = sorted(p.parent for p in root.glob(f"*/{LOG_FILE}"))

@@ -45,6 +45,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--variant", metavar="NAME", help="run only this variant")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--video", action="store_true", help="render DIR/replay.mp4 after the run")
+    p.add_argument(
+        "--no-mcap", action="store_true", help="do not write run.mcap (Foxglove) in each run"
+    )
     p.add_argument(
         "--check", action="store_true", help="check the scenario and --out, build and fly nothing"
     )
@@ -79,6 +83,10 @@ def run(args: argparse.Namespace) -> int:
     first = next(iter(scenarios.values()))
     out = Path(args.out or Path("runs") / first.name.split("/")[0])
     check_writable(out)
+    if args.video:  # fail now, not after the run, if it cannot be rendered
+        from aeromanip.viz.export import check_video
+
+        check_video()
     steps = sum(sc.steps for sc in scenarios.values())
     if args.check:
         print(f"{args.scenario}: {len(scenarios)} run(s), {steps} control steps -> {out}: ok")
@@ -89,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
         result = run_scenarios(scenarios, out, progress=not args.quiet)
     print(format_summary(result.summaries))
     where = result.out_dir.resolve() if result.out_dir else out
-    if result.interrupted is not None:
+    from aeromanip.viz.export import export_run
+
+    if result.interrupted is not None:  # stop at once: ``aeromanip replay DIR --mcap`` later
         flown = sum(int(s.get("steps", 0)) for s in result.summaries.values())
         print(
             f"aeromanip: interrupted ({result.interrupted}): {flown} of {steps} steps flown, "
@@ -97,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return result.interrupted.exit_code
+    export_run(where, mcap=not args.no_mcap, video=args.video)
     print(f"done in {time.perf_counter() - t0:.1f} s; outputs in {where}")
     problems = [
         f"{v or s.get('scenario')}: {s['flight_problem']}"
