@@ -80,3 +80,18 @@ def test_bad_bench_arguments_are_one_clear_line(args, message, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
+
+
+def test_the_horizon_probe_flies_its_case_and_reports_its_costs():
+    """``bench horizon``'s probe, in this process (warm cache: the flight's own N = 10
+    problem): every timed step solved, and its costs reported where the table reads them."""
+    from aeromanip.bench.horizon import STEPS, format_horizon, probe
+
+    row = probe(10, "sqp", "weighted")
+    assert row["ok_steps"] == row["steps"] == STEPS
+    assert row["build_s"] > 0 and row["rss_mib"] > 50  # Python + CasADi alone take more
+    assert 0 < row["step_ms_median"] <= row["step_ms_p95"]
+    table = format_horizon([row, {"horizon": 100, "backend": "sqp", "strategy": "weighted",
+                                  "error": "killed"}])  # fmt: skip
+    assert "failed: killed" in table.splitlines()[-1]
+    assert f"{STEPS}/{STEPS}" in table.splitlines()[1]

@@ -24,6 +24,7 @@ HORIZONS = (10, 20, 50, 100)
 CASES = (  # (backend, strategy)
     ("sqp", "weighted"),
     ("sqp", "hierarchical"),
+    ("sqp-rti", "hierarchical"),
     ("ipopt", "weighted"),
     ("ipopt", "hierarchical"),
 )
@@ -43,6 +44,7 @@ def probe(horizon: int, backend: str, strategy: str) -> dict[str, Any]:
         "sim='kinematic'",
         f"controller.dt={dt}",
         f"controller.horizon={horizon}",
+        "controller.weights_dt=0.5",  # the flight's weights, whatever the period
         f"controller.backend='{backend}'",
         f"controller.strategy='{strategy}'",
         f"duration={dt * (STEPS + WARMUP)}",

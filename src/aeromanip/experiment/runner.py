@@ -80,13 +80,16 @@ def summarize(sc: Scenario, log: RunLog, interrupted: bool = False) -> dict[str,
         steps_planned=sc.steps,
         interrupted=interrupted,
     )
-    summary.update(verdict(summary, sc.max_failure_ratio))
+    summary.update(verdict(summary, sc.max_failure_ratio, sc.max_bound_violation))
     return summary
 
 
-def verdict(summary: dict[str, Any], max_failure_ratio: float) -> dict[str, Any]:
-    """Did the run fly? Not if any step stopped the robot, or if more than
-    ``max_failure_ratio`` of its steps failed (fell back on the last plan or stopped).
+def verdict(
+    summary: dict[str, Any], max_failure_ratio: float, max_bound_violation: float = float("inf")
+) -> dict[str, Any]:
+    """Did the run fly? Not if any step stopped the robot, if more than
+    ``max_failure_ratio`` of its steps failed (fell back on the last plan or stopped), or
+    if its state left a bound by more than ``max_bound_violation`` [m, rad].
     Returns ``flight_ok`` and, when not, ``flight_problem`` (one line)."""
     counts = summary.get("steps_by_status", {})
     steps = max(int(summary.get("steps", 0)), 1)
@@ -99,6 +102,12 @@ def verdict(summary: dict[str, Any], max_failure_ratio: float) -> dict[str, Any]
         problem = (
             f"{failed} of {steps} steps failed ({failed / steps:.1%} > "
             f"max_failure_ratio {max_failure_ratio:g})"
+        )
+    elif float(summary.get("max_bound_violation", 0.0)) > max_bound_violation:
+        problem = (
+            f"{summary.get('max_bound_violation_column')} left its bound by "
+            f"{summary['max_bound_violation']:.3g} (> max_bound_violation "
+            f"{max_bound_violation:g})"
         )
     return {
         "flight_ok": not problem,

@@ -61,6 +61,7 @@ MAX_HORIZON = 500  # steps (the NLP grows with it: N = 100 covers 5 s at 20 Hz)
 MAX_DURATION = 1e6  # [s] about 11.6 days
 MAX_STEPS = 10_000_000  # control steps in one run
 MAX_FAILURE_RATIO = 0.05  # a run with more failed steps than this share did not fly
+MAX_BOUND_VIOLATION = 0.02  # [m, rad] a run whose state left a bound by more did not fly
 
 
 @dataclass
@@ -86,6 +87,7 @@ class Scenario:
     clearance: Clearance | None
     limits: Bounds
     max_failure_ratio: float = MAX_FAILURE_RATIO
+    max_bound_violation: float = MAX_BOUND_VIOLATION
     resolved: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -328,6 +330,7 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
             f"{duration / cs.dt:.3g} steps; at most {MAX_STEPS:g} in one run"
         )
     max_failure_ratio = t.float("max_failure_ratio", MAX_FAILURE_RATIO, minimum=0.0, maximum=1.0)
+    max_bound_violation = t.float("max_bound_violation", MAX_BOUND_VIOLATION, minimum=0.0)
     t.done()
     resolved = dict(t.resolved)
     if variant:
@@ -352,6 +355,7 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
         clearance=clearance,
         limits=limits,
         max_failure_ratio=max_failure_ratio,
+        max_bound_violation=max_bound_violation,
         resolved=resolved,
     )
 

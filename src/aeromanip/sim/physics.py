@@ -9,11 +9,13 @@ set-point is held in between. What the NMPC's command sets in the flight control
 (``setpoint``, as in PX4's offboard mode): ``"position"``, a position reference moving
 linearly within the control period from the plan's first state along the command ``u``,
 with ``u`` as velocity feed-forward; or ``"velocity"``, ``u`` as the velocity and yaw-rate
-set-point (no position loop: the NMPC closes it). Inactive platform DoFs are held at their
-fixed values. Joint servos are MuJoCo position actuators (PD, see ``mjcf.servo_gains``) whose
-set-point is shifted every physics step to add velocity feed-forward and an integral term:
-``tau = kp (q_ref - q) + kv (u_q - qdot) + ki int (q_ref - q)``. The per-step Python works
-on floats (no NumPy on 3-vectors, no per-step arrays).
+set-point (no position loop: the NMPC closes it; each servo's ramp goes on from where
+the last one ended, the joint rate integrated by the servo). Inactive platform DoFs are
+held at their fixed values. Joint servos are MuJoCo position actuators (PD, see
+``mjcf.servo_gains``) whose set-point is shifted every physics step to add velocity
+feed-forward and an integral term: ``tau = kp (q_ref - q) + kv (u_q - qdot) + ki int
+(q_ref - q)``. The per-step Python works on floats (no NumPy on 3-vectors, no per-step
+arrays).
 
 ``arm_torque`` (extras) is the wrench the arm exerts on the base through the mount, from
 MuJoCo's ``cfrc_int`` of the first arm body (the force/torque its parent transmits to it,
@@ -39,10 +41,11 @@ from aeromanip.config import check_range
 from aeromanip.errors import ConfigError, StateError
 from aeromanip.robot.spec import PLATFORM_DOFS, RobotSpec
 from aeromanip.sim.base import SIMULATORS, Simulator
+from aeromanip.sim.feedback import FeedbackNoise
 from aeromanip.sim.flight_controller import FlightController, FlightGains, Mixer, rotor_layout
 from aeromanip.sim.mjcf import FREE_JOINT, K_M, SERVO_HZ, max_rotor_thrust, robot_to_mjcf
 
-NOISE_KEYS = ("position", "yaw", "joints")
+NOISE_KEYS = ("position", "yaw", "joints", "filter")
 OPTION_KEYS = (
     "rate_hz", "outer_rate_hz", "rotors", "seed", "noise", "gains", "servo_hz", "servo_i",
     "setpoint",
@@ -79,7 +82,9 @@ class PhysicsSimulator(Simulator):
         outer_rate_hz: position/velocity-loop rate [Hz], in ``[10, rate_hz]``; rounded to
             ``rate_hz / outer_every`` with ``outer_every`` an integer (``rate_hz`` to run it
             every physics step).
-        noise: measurement noise std devs ``{"position": m, "yaw": rad, "joints": rad}``.
+        noise: measurement noise std devs ``{"position": m, "yaw": rad, "joints": rad}``,
+            white at each ``state()``; with ``"filter": T`` [s] > 0, the error of an
+            autopilot's estimate fusing them at the outer-loop rate (``sim.feedback``).
         seed: seed of the noise generator (re-seeded at every ``reset``).
         rotors: number of rotors (default: the platform's), X layout, flat or in coaxial
             pairs as the platform says.
@@ -274,13 +279,17 @@ class PhysicsSimulator(Simulator):
         self.controller.reset(torque_trim=d.qfrc_bias[fv + 3 : fv + 6])
         servo_int = d.qfrc_bias[self._v_adr].copy()
         self._servo_int = servo_int.tolist()
+        #: with velocity set-points, where each servo's ramp ended (the next one goes on)
+        self._servo_ref = [float(q) for q in x0[self._n_p :]]
         d.ctrl[: self.rotors] = self.controller.motors
         d.ctrl[self.rotors :] = x0[self._n_p :] + servo_int / self._kp
         mujoco.mj_forward(m, d)
         mujoco.mj_rnePostConstraint(m, d)
         self._yaw = pose["yaw"]
         self.time = 0.0
-        self.rng = np.random.default_rng(self.seed)
+        self.feedback = FeedbackNoise(
+            self._noise_std(), self.noise["filter"], self.outer_rate_hz, self.seed
+        )
         self._arm_torque = self._arm_torque_now()
         self._motor_mean = np.array(self.controller.motors)
         self._spread_mean = float(self._motor_mean.max() - self._motor_mean.min())
@@ -309,12 +318,18 @@ class PhysicsSimulator(Simulator):
         yi = self._yaw_idx
         yaw0, yaw_rate = (self._fixed["yaw"], 0.0) if yi is None else (start[yi], u[yi])
         yaw0, yaw_rate = float(yaw0), float(yaw_rate)
-        # per joint: qpos address, limits, 1 / kp, ki h, start and rate of the ramp, kv u_q
+        # per joint: qpos address, limits, 1 / kp, ki h, start and rate of the ramp, kv u_q;
+        # with velocity set-points a servo's ramp goes on from where the last one ended (a
+        # rate command integrated by the servo), else it starts at the plan's first state
+        ramp_start = self._servo_ref if self.velocity_setpoint else start[self._n_p :].tolist()
         servos = [
             (adr, lo, hi, 1.0 / kp, ki * self.h, q0, uq, kv * uq)
             for (adr, lo, hi, kp, kv, ki), q0, uq in zip(
-                self._servos, start[self._n_p :].tolist(), u[self._n_p :].tolist(), strict=True
+                self._servos, ramp_start, u[self._n_p :].tolist(), strict=True
             )
+        ]
+        self._servo_ref = [
+            min(max(q0 + uq * n * self.h, lo), hi) for (_, lo, hi, *_r, q0, uq, _ff) in servos
         ]
         servo_int = self._servo_int
         fq, fv, h, every = self._free_q, self._free_v, self.h, fc.outer_every
@@ -355,17 +370,18 @@ class PhysicsSimulator(Simulator):
         self.true_state()  # keeps the unwrapped yaw current
 
     def state(self) -> np.ndarray:
-        """Measured NMPC state ``[active platform DoFs, q]`` (with noise if configured)."""
-        x = self.true_state()
-        s = self.noise
-        if s["position"] > 0:
-            for i, _ in self._pos_idx:
-                x[i] += self.rng.normal(0.0, s["position"])
-        if s["yaw"] > 0 and self._yaw_idx is not None:
-            x[self._yaw_idx] += self.rng.normal(0.0, s["yaw"])
-        if s["joints"] > 0:
-            x[self._n_p :] += self.rng.normal(0.0, s["joints"], self.spec.n_joints)
-        return x
+        """Measured NMPC state ``[active platform DoFs, q]``: the true one plus the
+        configured noise (``sim.feedback``)."""
+        return self.true_state() + self.feedback.error(self.time)
+
+    def _noise_std(self) -> np.ndarray:
+        """Per NMPC state DoF, the std of its measurement noise [m, rad]."""
+        std = np.zeros(self.spec.nx)
+        std[[i for i, _ in self._pos_idx]] = self.noise["position"]
+        if self._yaw_idx is not None:
+            std[self._yaw_idx] = self.noise["yaw"]
+        std[self._n_p :] = self.noise["joints"]
+        return std
 
     def extras(self) -> dict[str, float]:
         """``roll``, ``pitch`` [rad] now; period means of ``motor_i``, ``thrust_total``,

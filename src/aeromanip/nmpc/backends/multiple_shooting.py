@@ -27,23 +27,29 @@ from aeromanip.nmpc.backends.qp import QpResult
 from aeromanip.nmpc.backends.qp_model import Linearization
 from aeromanip.nmpc.transcription import COUPLING, Transcription
 
-# HPIPM rarely reaches residuals of 1e-10 on these QPs: it then runs all its iterations
-# (at N = 50 ~1.5 ms each), though its answer stopped improving after ~10; with looser
-# tolerances (1e-8) the SQP with the exact Hessian stalls on the inexact steps
-HPIPM_OPTIONS: dict[str, Any] = {
-    "hpipm": {
-        "mode": "robust",
-        "iter_max": 25,
-        **dict.fromkeys(("res_g_max", "res_b_max", "res_d_max", "res_m_max"), 1e-10),
-    }
-}
+# HPIPM (robust mode) rarely reaches residuals of 1e-10 on these QPs and then runs all its
+# iterations (at N = 50 ~1 ms each). A converged SQP needs them: with looser residuals
+# (1e-8), or 25 iterations, the SQP stalls on the inexact steps short of tol = 1e-9 (seen
+# on flight-rates/20hz from rest). A real-time iteration takes one QP per control step:
+# residuals of 1e-8 (~8 iterations) are plenty there. (residual tolerance, iterations):
+HPIPM_LIMITS = {"sqp": (1e-10, 50), "rti": (1e-8, 25)}
+
+
+def hpipm_options(kind: str) -> dict[str, Any]:
+    """CasADi's ``hpipm`` options for a converged SQP (``"sqp"``) or an RTI (``"rti"``)."""
+    tol, iterations = HPIPM_LIMITS[kind]
+    residuals = ("res_g_max", "res_b_max", "res_d_max", "res_m_max")
+    return {"hpipm": {"mode": "robust", "iter_max": iterations, **dict.fromkeys(residuals, tol)}}
+
+
 QP_FEASIBILITY = 1e-6  # a QP step keeps its rows and bounds to this (relative to 1 + |d|)
 MAX_STEP = 1e3  # [m, rad, m/s, rad/s] a longer step comes from an indefinite, unbounded QP
 
 
 def check_hpipm_options(options: dict[str, Any]) -> None:
     """HPIPM takes ``options`` (tried on a one-step OCP QP)."""
-    opts = {"error_on_fail": False, "print_time": False, **HPIPM_OPTIONS, **options}
+    opts = {"error_on_fail": False, "print_time": False, **hpipm_options("sqp")}
+    opts.update(options)
     H = ca.DM.eye(3)
     A = ca.DM([[-1.0, -1.0, 1.0]])  # x1 = x0 + u0
     try:
@@ -171,7 +177,8 @@ class MultipleShootingModel:
         self.A_sp = order.sparsity()
         self.a_perm = np.asarray(order.nonzeros(), dtype=int) - 1  # CCS position -> ours
         self.a_fixed = np.array(vals[: self.n_gap_entries])
-        opts = {"error_on_fail": False, "print_time": False, **HPIPM_OPTIONS}
+        kind = "rti" if self.opts["rti"] else "sqp"
+        opts = {"error_on_fail": False, "print_time": False, **hpipm_options(kind)}
         opts.update(self.opts["qpsol_options"])
         with quiet_stdout():
             qp = ca.conic(f"aeromanip_hpipm_{N}", "hpipm", {"h": self.H_sp, "a": self.A_sp}, opts)
