@@ -256,3 +256,11 @@ def test_clearance_binds_in_3d_and_holds(tmp_path):
     for p, depth in s["min_clearance_by_point_m"].items():
         assert depth >= d_min - 1e-9, p
     assert (tmp_path / "figures" / "clearance.png").stat().st_size > 0
+
+
+def test_set_wins_over_a_variants_own_value():
+    """``--set KEY=VALUE`` is the last word, also where a variant sets the key itself."""
+    plain = load_scenarios("flight-rates")
+    assert [plain[v].latency_s for v in ("2hz", "10hz", "20hz")] == [0.0, 0.02, 0.01]
+    forced = load_scenarios("flight-rates", ["controller.latency=0.0", "duration=7"])
+    assert all(sc.latency_s == 0.0 and sc.duration == 7.0 for sc in forced.values())

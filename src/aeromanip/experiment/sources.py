@@ -97,7 +97,8 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 def expand_variants(
     data: dict[str, Any], overrides: list[str] = (), only: str | None = None
 ) -> dict[str, dict[str, Any]]:
-    """Apply ``--set`` overrides, then split into variants: {variant name or "": data}."""
+    """Apply ``--set`` overrides, then split into variants: {variant name or "": data};
+    an override also wins over a variant's value for the same key."""
     data = copy.deepcopy(data)
     controller = data.get("controller")
     if isinstance(controller, dict):  # free-form: --set controller.solver_options.KEY=...
@@ -121,4 +122,8 @@ def expand_variants(
         if not isinstance(over, dict):
             raise ConfigError(f"variants.{name}: must be a table of overrides")
         out[name] = _merge(data, over)
+        for text in overrides:  # --set wins over the variant's own values too
+            path, value = parse_override(text)
+            if path[0] != "variants":
+                apply_override(out[name], path, value, f"--set {text}", FREE_FORM)
     return out
