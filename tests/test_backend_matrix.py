@@ -53,11 +53,7 @@ def same(a, b):
 
 
 KNOWN = {  # cases that fail today, each with its issue: they must start passing there
-    ("waypoints-unbounded", "hierarchical", "sqp"): "issue 14: level 1 runs out of iterations",
-    ("clearance", "", "sqp"): "issue 14: from rest with the clearance binding, sqp stops in "
-    "a local optimum 4x IPOPT's",
     ("clearance", "", "fatrop"): "issue 14: fatrop fails from rest with the clearance binding",
-    ("clearance", "", "sqp-hpipm"): "issue 14: as sqp (the same SQP on a sparse QP)",
 }
 
 

@@ -95,3 +95,30 @@ def test_the_horizon_probe_flies_its_case_and_reports_its_costs():
                                   "error": "killed"}])  # fmt: skip
     assert "failed: killed" in table.splitlines()[-1]
     assert f"{STEPS}/{STEPS}" in table.splitlines()[1]
+
+
+def test_stress_cases_reach_ipopts_closed_loop_without_partial_steps():
+    """Issue 14: with the clearance binding from rest, the seeded sqp loops end where
+    IPOPT's do (they stopped at a local optimum 4x costlier before), RTI too; with the
+    velocity bounds binding, the hierarchy's second level is solved at every step."""
+    from aeromanip.bench.controller import run_variant
+    from aeromanip.bench.stress import RTI_COST, SQP_COST, bench_stress, format_stress
+
+    r = bench_stress(["clearance"], duration=5.0, warmup=1)
+    c = r["cases"]["clearance"]
+    ratios = c["targets"]["cost_ratio"]
+    assert ratios["weighted"] <= SQP_COST and ratios["hierarchical"] <= SQP_COST
+    assert ratios["rti"] <= RTI_COST
+    assert all(row["failures"] == 0 for row in c["rows"].values())
+    assert "| clearance | hierarchical | sqp |" in format_stress(r)
+    fast = run_variant("fast", "hierarchical", "sqp", duration=10.0, warmup=1)
+    assert fast["partial_steps"] == fast["failures"] == 0
+    assert fast["velocity_bound_active_share"] > 0.1
+
+
+def test_unknown_stress_case_is_one_clear_line():
+    from aeromanip.bench.stress import bench_stress
+    from aeromanip.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="stress case 'windy': unknown"):
+        bench_stress(["windy"])

@@ -213,13 +213,14 @@ def build_dirs(cache: Path) -> list[str]:
 
 
 def hess_compiling(cache: Path) -> bool:
-    """The compiler of the last Function (the Hessian) runs: every build has started."""
-    return any("_hess_" in cmd for cmd in compilers_of(cache).values())
+    """The compiler of the last Function (a Hessian: ``_hess`` sparse, ``_hessl_`` dense)
+    runs: every build has started."""
+    return any("_hess" in cmd for cmd in compilers_of(cache).values())
 
 
 def hess_generating(cache: Path) -> bool:
     """The Hessian's build directory exists, its compiler does not run yet."""
-    return bool(list(cache.glob("build-*_hess_*"))) and not hess_compiling(cache)
+    return bool(list(cache.glob("build-*_hess*"))) and not hess_compiling(cache)
 
 
 @pytest.mark.codegen

@@ -92,13 +92,25 @@ class PlainIpopt:
         return u, int(st["iter_count"]), bool(st["success"])
 
 
+#: the closed loops' problems: kind -> (built-in scenario, overrides)
+KINDS: dict[str, tuple[str, list[str]]] = {
+    "flight": ("flight", []),
+    "fast": ("flight", []),  # the reference FAST times faster (``_scenario``)
+    # far from the reference (the EE 0.9 m away), the platform at its box's corner and
+    # turned, every joint within 0.1 rad of a limit
+    "far": ("flight", ["initial_state=[0.5, -0.5, 1.4, 1.2, 1.47, -1.5, 2.1]"]),
+    "clearance": ("clearance", []),  # the reference rises to the base: eq. 17 binds
+}
+
+
 def _scenario(kind: str, duration: float) -> Scenario:
-    sets = [f"duration={duration}"]
-    sc = load_scenarios("flight", sets)[""]
+    name, extra = KINDS[kind]
+    sets = [f"duration={duration}", "sim=kinematic", *extra]
+    sc = load_scenarios(name, sets)[""]
     if kind == "fast":  # the flight's Lissajous frequencies [Hz], FAST times higher
         freq = sc.resolved["reference"]["frequency"]
         fast = f"reference.frequency={[FAST * f for f in freq]}"
-        sc = load_scenarios("flight", [*sets, fast])[""]
+        sc = load_scenarios(name, [*sets, fast])[""]
     return sc
 
 
@@ -118,8 +130,10 @@ def _stepper(
     def step(x: np.ndarray, t: float) -> tuple[np.ndarray, int, bool]:
         cmd = ctrl.step(x, t)
         step.last = cmd  # type: ignore[attr-defined]  # for the IPOPT shadow
+        step.partial += cmd.status == "partial"  # type: ignore[attr-defined]
         return cmd.u, cmd.iterations, cmd.status == "ok"
 
+    step.partial = 0  # type: ignore[attr-defined]  # steps with a lower level unsolved
     return ctrl, step
 
 
@@ -140,6 +154,8 @@ def run_variant(
     for k in range(warmup):  # compile, load, fill caches; then start afresh
         step(x, k * sc.problem.dt)
     ctrl.reset()
+    if hasattr(step, "partial"):
+        step.partial = 0
     shadow = None
     if shadowed:
         weighted = isinstance(ctrl.strategy, Weighted)
@@ -158,6 +174,7 @@ def run_variant(
         "iterations_mean": float(np.mean(its)),
         "iterations_max": int(np.max(its)),
         "failures": int(fails),
+        "partial_steps": int(getattr(step, "partial", 0)),
         **_score(sc, X, U),
         "commands": U.tolist(),
         **(shadow.summary() if shadow else {}),

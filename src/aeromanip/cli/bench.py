@@ -18,9 +18,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "what",
         nargs="?",
         default="all",
-        choices=["all", "kinematics", "controller", "render", "horizon"],
-        help="what to measure; 'horizon' (cold builds at N = 10..100, tens of minutes) "
-        "is not part of 'all'",
+        choices=["all", "kinematics", "controller", "stress", "render", "horizon"],
+        help="what to measure; 'stress' (binding bounds, a far start, the clearance "
+        "binding: issue 14's targets) and 'horizon' (cold builds at N = 10..100, tens "
+        "of minutes) are not part of 'all'",
     )
     p.add_argument(
         "--variant",
@@ -87,6 +88,14 @@ def run(args: argparse.Namespace) -> int:
         r = bench_controller(names, duration=args.duration)
         results["controller"] = r
         print(format_controller(r))
+        print()
+    if args.what == "stress":
+        from aeromanip.bench.stress import bench_stress, format_stress
+
+        print(f"controller under stress, {args.duration:g} s closed loop per case and row:")
+        r = bench_stress(duration=args.duration)
+        results["stress"] = r
+        print(format_stress(r))
         print()
     if args.what in ("render", "all"):
         results["render"] = _bench_render()

@@ -188,7 +188,10 @@ class Hierarchical:
             higher = [[e for e in problem.entries if e.level == h] for h in self.levels[:i]]
             tr = Transcription(problem, own + reg, higher, mode)
             self.solvers.append(LevelSolver(own, tr, make_backend(tr, backend, options)))
-        self.own_guess = backend.startswith("sqp")
+        # an SQP needs no feasible start: a relaxed level starts from its own last
+        # solution; a strict one from the level above's, on its rows exactly (from its
+        # own, with velocity bounds binding, it crawls back onto the curved rows)
+        self.own_guess = backend.startswith("sqp") and mode != "strict"
         idx = {e.name: i for i, e in enumerate(problem.entries)}
         self.rows = [[idx[e.name] for e in st.entries] for st in self.solvers]
         self.reg_rows = [idx[e.name] for e in reg]

@@ -292,7 +292,7 @@ class Transcription:
                 rows = book.add(hier[j], -np.inf, np.inf, f"hier{j}", k)
                 self.hier_rows[j] += rows
                 self.hier_residuals.append((rows[0], r))
-            elif self.mode in RESIDUAL_ROWS:  # linear in the residuals: no curvature term
+            elif self.mode in RESIDUAL_ROWS:  # the residuals themselves (nonlinear in w)
                 self.hier_rows[j] += book.add(r, -np.inf, np.inf, f"hier{j}", k)
             else:
                 c_sum, r_list = totals[j]

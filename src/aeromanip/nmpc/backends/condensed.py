@@ -83,9 +83,10 @@ class CondensedModel:
         data = ca.Function(f"aeromanip_sqp_data_{tag}", [U, p], [R, J, gc, A, Jh])
         merit = ca.Function(f"aeromanip_sqp_merit_{tag}", [U, p], [ca.sumsqr(R), gc])
         fs = [data, merit, tr.stage_costs]
-        if with_exact:
-            Hf = ca.densify(ca.hessian(ca.sumsqr(R), U)[0])
-            fs.append(ca.Function(f"aeromanip_sqp_hess_{tag}", [U, p], [Hf]))
+        if with_exact:  # of the Lagrangian: the rows' curvature (clearance, hierarchy) too
+            lam = ca.SX.sym("lam", gc.numel())
+            Hf = ca.densify(ca.hessian(ca.sumsqr(R) + ca.dot(lam, gc), U)[0])
+            fs.append(ca.Function(f"aeromanip_sqp_hessl_{tag}", [U, p, lam], [Hf]))
         fs = compiled_all(fs, self.opts["codegen"])  # built in parallel, once, cached
         self.data, self.merit_f = Buffered(fs[0]), Buffered(fs[1])
         tr.use_stage_costs(fs[2])
@@ -172,14 +173,31 @@ class CondensedModel:
         lam_v: np.ndarray,
         p: np.ndarray,
         exact: bool,
+        damping: float = 0.0,
     ) -> QpResult:
-        """The dense QP on the rows that may bind."""
+        """The dense QP on the rows that may bind; ``damping`` times the Hessian's largest
+        diagonal entry is added to its diagonal (a Levenberg-Marquardt step)."""
         J, A, Jh = lin.data
-        Hf = self.hess(v, p)[0] if (exact and self.hess is not None) else None
+        Hf = self.hess(v, p, lam_c)[0] if (exact and self.hess is not None) else None
         H = self._hessian(J, Jh, Hf, lam_c, lam_v, A)
-        H.flat[:: self.nU + 1] += self.opts["regularization"]
+        diag = H.flat[:: self.nU + 1]
+        H.flat[:: self.nU + 1] += self.opts["regularization"] + damping * float(diag.max())
+        self._last_H = H
         gc = lin.c
         return self.qp.solve(H, lin.grad, A, lin.lbc - gc, lin.ubc - gc, self.lbU - v, self.ubU - v)
+
+    def correction(
+        self, v: np.ndarray, d: np.ndarray, lin: Linearization, p: np.ndarray
+    ) -> QpResult:
+        """The step ``d`` with a second-order correction: the last QP again, its rows'
+        values taken at ``v + d`` (``c(v + d) - A d``), so that curved rows (the
+        hierarchy's residuals, the clearance) hold to second order: the full step the
+        l1 merit rejects near a curved boundary (Maratos effect) is accepted corrected."""
+        A = lin.data[1]
+        c = self.merit_f(v + d, p)[1] - A @ d
+        return self.qp.solve(
+            self._last_H, lin.grad, A, lin.lbc - c, lin.ubc - c, self.lbU - v, self.ubU - v
+        )
 
     def _hessian(
         self,
@@ -195,14 +213,12 @@ class CondensedModel:
         which keeps the step on that active set); plus the Gauss-Newton curvature of the
         hierarchy's cost rows."""
         Hh = None
-        if self.nh:
+        if self.nh and Hf is None:  # the exact Hessian has the rows' curvature already
             lam_h = np.maximum(lam_c[self.hier_elem_row], 0.0)
             Jw = Jh.reshape(self.nh, self.nU, order="F") * np.sqrt(lam_h)[:, None]
             Hh = 2.0 * (Jw.T @ Jw)
         if Hf is not None:
             H = Hf.reshape(self.nU, self.nU, order="F").copy()
-            if Hh is not None:
-                H += Hh
             return convexified(H, A[lam_c != 0.0], np.flatnonzero(lam_u != 0.0))
         H = J.T @ J
         H *= 2.0

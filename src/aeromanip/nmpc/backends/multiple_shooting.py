@@ -364,9 +364,11 @@ class MultipleShootingModel:
         lam_v: np.ndarray,
         p: np.ndarray,
         exact: bool,
+        damping: float = 0.0,
     ) -> QpResult:
         """The sparse QP, solved by HPIPM (with the exact Hessian if asked and it gives a
-        descending step, else with the Gauss-Newton one)."""
+        descending step, else with the Gauss-Newton one). ``damping`` is not used: on
+        this model it made the hierarchy's levels stall (the flight at 10 Hz)."""
         res = self._qp(lin, *self._hessian_blocks(lin, lam_c, p, exact))
         huge = np.abs(res.d).max(initial=0.0) > MAX_STEP  # unbounded: an indefinite QP
         if exact and (not res.ok or huge or float(lin.grad @ res.d) > 0.0):

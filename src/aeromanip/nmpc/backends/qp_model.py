@@ -67,9 +67,11 @@ class QpModel(Protocol):
         lam_v: np.ndarray,
         p: np.ndarray,
         exact: bool,
+        damping: float = 0.0,
     ) -> QpResult:
         """The QP step from ``v`` (Gauss-Newton Hessian, or the exact one made positive
-        definite), its multipliers and whether the QP solver succeeded."""
+        definite, plus ``damping`` times its largest diagonal entry on the diagonal), its
+        multipliers and whether the QP solver succeeded."""
         ...
 
     def merit(self, v: np.ndarray, p: np.ndarray) -> tuple[float, float]:

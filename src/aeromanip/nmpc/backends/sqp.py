@@ -25,7 +25,15 @@ How it is built, and why:
   ``lam_r >= 0``), ``lam_r`` from the last QP: the linearisation of a squared norm alone
   says nothing near its minimum, and with this term the QP sees the ball it must stay in.
   Each level starts from its own previous solution, shifted (no feasible start needed).
-* **Globalisation:** an l1 merit function with Armijo backtracking.
+* **Globalisation:** an l1 merit function with Armijo backtracking; a rejected full step
+  is retried once with a second-order correction (the condensed model's rows
+  re-linearised at its end: curved rows, the Maratos effect), and after a shortened
+  step the Hessian is damped (Levenberg-Marquardt, condensed model only).
+* **Seeding** (``seed="ipopt"``): on a cold start (no multipliers: the first step, a
+  reset, a retry) IPOPT solves first and the SQP polishes its answer; an answer costing
+  more than ``seed_ratio`` times the last one's is solved so too, the cheaper kept (not
+  in real-time iterations, whose steps must keep their bounded cost). From
+  rest with the clearance binding the SQP alone stopped in a local optimum ~4x IPOPT's.
 * **Stopping:** stationarity ``||grad f + A^T lam||_inf``, constraint violation and
   complementarity all ``<= tol`` (default ``1e-6``), at each new iterate with the last
   QP's multipliers; or, as IPOPT's acceptable level, stationarity and complementarity
@@ -50,13 +58,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from aeromanip.errors import ConfigError
-from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult
+from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult, make_backend
 from aeromanip.nmpc.backends.codegen import limit_blas_threads
 from aeromanip.nmpc.backends.condensed import CondensedModel
 from aeromanip.nmpc.backends.kkt import l1, violation
 from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel, check_hpipm_options
 from aeromanip.nmpc.backends.qp import SOLVERS as QP_SOLVERS
-from aeromanip.nmpc.backends.qp import DenseQp
+from aeromanip.nmpc.backends.qp import DenseQp, QpResult
 from aeromanip.nmpc.backends.qp_model import Linearization, QpModel
 from aeromanip.nmpc.transcription import Transcription
 
@@ -82,8 +90,15 @@ DEFAULTS: dict[str, Any] = {
     "qpsol_options": {},  # extra options of the QP solver
     "screen": 0.1,  # QP rows farther than this from their bounds are left out at first
     "blas_threads": 1,  # OpenBLAS threads in this process (None: leave as is)
+    # a robust first guess (module docstring): "ipopt" solves the NLP with IPOPT first on
+    # a cold start, and when an answer costs more than seed_ratio times what the last
+    # one promised; "none": never
+    "seed": "ipopt",
+    "seed_ratio": 3.0,
 }
 HESSIANS = ("auto", "exact", "gauss-newton")
+SEEDS = ("ipopt", "none")
+SEED_FLOOR = 1e-6  # [cost units] an answer within this of the promise is never re-seeded
 
 
 def _int_at_least(low: int) -> Callable[[Any], str]:
@@ -123,11 +138,17 @@ OPTION_CHECKS: dict[str, Callable[[Any], str]] = {
     "qpsol_options": lambda v: "" if isinstance(v, Mapping) else "a table",
     "screen": _number(positive=False),
     "blas_threads": lambda v: "" if v is None or _int_at_least(1)(v) == "" else "an integer >= 1",
+    "seed": _one_of(SEEDS),
+    "seed_ratio": lambda v: "" if _number(True)(v) == "" and v >= 1 else "a finite number >= 1",
 }
 EXACT_FROM_ITERATION = 6  # "auto": the exact Hessian from this (0-based) iteration on
 ARMIJO = 1e-4  # sufficient decrease of the l1 merit, per unit of its directional derivative
 BACKTRACK = 0.5  # step-length factor per rejected trial
 MIN_STEP = 1e-3  # the shortest step tried; taken as it is
+# Levenberg-Marquardt damping (relative to the Hessian's largest diagonal entry) after
+# the first shortened step of a solve, and its factor per shortened (up) or full (down) one
+DAMPING_START = 1e-3
+DAMPING_GROWTH = 10.0
 PENALTY_MARGIN = 1.1  # the merit's penalty exceeds the largest multiplier by this factor
 PENALTY_FLOOR = 1e-8  # and by at least this
 
@@ -157,6 +178,9 @@ class SqpBackend(Backend):
             self.model = CondensedModel(transcription, {**self.opts, "qpsol": self.qpsol})
         if self.opts["blas_threads"] is not None:
             limit_blas_threads(int(self.opts["blas_threads"]))
+        self._ipopt: Backend | None = None  # the seed, built on first use
+        self._promise: float | None = None  # the last answer's cost
+        self.seeds = 0  # IPOPT seeds so far
 
     @staticmethod
     def pick_qp(opts: Mapping[str, Any], horizon: int) -> str:
@@ -206,7 +230,51 @@ class SqpBackend(Backend):
         shift: bool = True,
     ) -> NlpResult:
         """Solve from the primal guess ``w0`` and multipliers: the last control step's,
-        moved a stage on here (``shift=False``: this step's)."""
+        moved a stage on here (``shift=False``: this step's); seeded by IPOPT on a cold
+        start (no multipliers) or an answer far above the last one's cost (``seed``)."""
+        seeded = self.opts["seed"] != "none"
+        if seeded and lam_g0 is None:
+            res = self._seeded(w0, p, lbg, ubg)
+        else:
+            res = self._sqp(w0, p, lbg, ubg, lam_g0, lam_x0, shift)
+            promise = self._promise
+            if (
+                seeded
+                and not self.opts["rti"]  # an RTI step keeps its bounded cost
+                and promise is not None
+                and res.f > self.opts["seed_ratio"] * promise + SEED_FLOOR
+            ):
+                res = _cheaper(res, self._seeded(w0, p, lbg, ubg))
+        self._promise = res.f if res.success else None
+        return res
+
+    def _seeded(self, w0: np.ndarray, p: np.ndarray, lbg: np.ndarray, ubg: np.ndarray) -> NlpResult:
+        """IPOPT from ``w0`` (at most ``max_iter`` iterations), then the SQP from its
+        answer and multipliers (the SQP alone from ``w0`` if IPOPT fails). The time of
+        both is counted; ``iterations`` counts the QPs only."""
+        self.seeds += 1
+        if self._ipopt is None:
+            opts = {"ipopt.max_iter": int(self.opts["max_iter"])}
+            self._ipopt = make_backend(self.tr, "ipopt", opts)
+        first = self._ipopt.solve(w0, p, lbg, ubg)
+        if not first.success:
+            res = self._sqp(w0, p, lbg, ubg, None, None, True)
+        else:
+            res = self._sqp(first.w, p, lbg, ubg, first.lam_g, first.lam_x, False)
+        res.solve_time_s += first.solve_time_s
+        return res
+
+    def _sqp(
+        self,
+        w0: np.ndarray,
+        p: np.ndarray,
+        lbg: np.ndarray,
+        ubg: np.ndarray,
+        lam_g0: np.ndarray | None,
+        lam_x0: np.ndarray | None,
+        shift: bool,
+    ) -> NlpResult:
+        """The SQP loop (module docstring)."""
         t0 = time.perf_counter()
         o, model = self.opts, self.model
         p = np.asarray(p, dtype=float)
@@ -215,6 +283,7 @@ class SqpBackend(Backend):
         exact = o["hessian"] == "exact"
         max_iter = 1 if o["rti"] else int(o["max_iter"])
         acceptable = 0  # iterations in a row at the acceptable level
+        damping = 0.0  # Levenberg-Marquardt: grows after each shortened step
         while True:
             lin = model.linearize(v, p)
             f = lin.f
@@ -235,7 +304,7 @@ class SqpBackend(Backend):
             if it >= max_iter:
                 status = "Maximum_Iterations_Exceeded"
                 break
-            qp = model.step(v, lin, lam_c, lam_v, p, exact)
+            qp = model.step(v, lin, lam_c, lam_v, p, exact, damping)
             it += 1
             if not qp.ok:
                 status = f"QP failed: {qp.status}"
@@ -246,14 +315,27 @@ class SqpBackend(Backend):
                 ok, status = True, "RTI step"
                 break
             mu = max(mu, PENALTY_MARGIN * np.abs(lam_c).max(initial=0.0) + PENALTY_FLOOR)
-            alpha = _line_search(model, v, d, p, lin, mu)
+            alpha, soc = _line_search(model, v, d, p, lin, mu)
+            if soc is not None:
+                d, lam_c, lam_v = soc.d, soc.lam_a, soc.lam_x
             v = v + alpha * d
+            damping = _damping(damping, alpha)
             exact = o["hessian"] == "exact" or (
                 o["hessian"] == "auto" and _go_exact(model, exact, alpha, it)
             )
         w, lam_g, lam_x = model.result(v, p, lam_c, lam_v)
         ok = ok and bool(np.all(np.isfinite(w)))
         return NlpResult(w, lam_g, lam_x, f, ok, status, it, time.perf_counter() - t0)
+
+
+def _cheaper(a: NlpResult, b: NlpResult) -> NlpResult:
+    """The successful answer of lower cost (``a`` if neither succeeded), with the effort
+    of both."""
+    best = b if b.success and (not a.success or b.f < a.f) else a
+    other = a if best is b else b
+    best.iterations += other.iterations
+    best.solve_time_s += other.solve_time_s
+    return best
 
 
 def _go_exact(model: QpModel, exact: bool, alpha: float, it: int) -> bool:
@@ -270,19 +352,44 @@ def _go_exact(model: QpModel, exact: bool, alpha: float, it: int) -> bool:
     return exact or alpha < 1.0 or it >= EXACT_FROM_ITERATION
 
 
+def _damping(damping: float, alpha: float) -> float:
+    """The next iteration's Levenberg-Marquardt damping (relative to the Hessian's
+    largest diagonal entry): up after a shortened step, down after a full one.
+
+    Where the QP model is flat along a direction the rows curve away from (a null motion
+    of the tasks, kept only by a small regulariser), its step is long and the merit
+    takes a sliver of it, again and again; damping shortens the steps instead."""
+    if alpha < 1.0:
+        return max(DAMPING_GROWTH * damping, DAMPING_START)
+    damping /= DAMPING_GROWTH
+    return damping if damping >= DAMPING_START else 0.0
+
+
 def _line_search(
     model: QpModel, v: np.ndarray, d: np.ndarray, p: np.ndarray, lin: Linearization, mu: float
-) -> float:
-    """Armijo backtracking on the l1 merit ``f + mu * sum(violations)``: the step length."""
+) -> tuple[float, QpResult | None]:
+    """Armijo backtracking on the l1 merit ``f + mu * sum(violations)``: the step length,
+    and the corrected QP step if the full step was accepted only with a second-order
+    correction (a model's ``correction``, when it has one)."""
     viol = l1(lin.c, lin.lbc, lin.ubc)
     phi0 = lin.f + mu * viol
     slope = float(lin.grad @ d) - mu * viol
-    alpha = 1.0
-    while True:
-        f1, viol1 = model.merit(v + alpha * d, p)
-        if f1 + mu * viol1 <= phi0 + ARMIJO * alpha * min(slope, 0.0) or alpha < MIN_STEP:
-            return alpha
+
+    def accepted(step: np.ndarray, alpha: float) -> bool:
+        f1, viol1 = model.merit(v + step, p)
+        return f1 + mu * viol1 <= phi0 + ARMIJO * alpha * min(slope, 0.0)
+
+    if accepted(d, 1.0):
+        return 1.0, None
+    correct = getattr(model, "correction", None)
+    if correct is not None:
+        soc = correct(v, d, lin, p)
+        if soc.ok and accepted(soc.d, 1.0):
+            return 1.0, soc
+    alpha = BACKTRACK
+    while not (accepted(alpha * d, alpha) or alpha < MIN_STEP):
         alpha *= BACKTRACK
+    return alpha, None
 
 
 @BACKENDS.register("sqp-rti")
