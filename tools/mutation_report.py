@@ -19,7 +19,7 @@ import subprocess
 import sys
 from collections import Counter, defaultdict
 
-LINE = re.compile(r"^\s*(?P<name>aeromanip\.\S+?)__mutmut_\d+: (?P<status>.+)$")
+LINE = re.compile(r"^\s*(?P<name>aeromanip\.\S+?__mutmut_\d+): (?P<status>.+)$")
 KILLED = {"killed", "timeout"}
 NOT_COUNTED = {"skipped", "caught by type check", "not checked"}
 

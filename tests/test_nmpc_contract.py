@@ -1,0 +1,573 @@
+"""Documented contracts of the NMPC layer that no closed-loop test pins down.
+
+Truths: the docstrings and comments of ``sqp.DEFAULTS`` (each option's type and range,
+``hessian``), ``sqp._go_exact`` (when "auto" goes exact), ``base.casadi_message`` (one
+line, without suggestions or listings), ``codegen.cache_dir`` (``$AEROMANIP_CACHE`` or
+``~/.cache/aeromanip``, as docs/guide.md says), ``codegen.limit_blas_threads`` (read back
+with OpenBLAS's own getter) and the QP solvers themselves (a failed QP reports the status
+DAQP / qpOASES give for the same QP).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from aeromanip.errors import ConfigError, StateError
+from aeromanip.nmpc.backends import codegen
+from aeromanip.nmpc.backends.base import NlpResult, casadi_message
+from aeromanip.nmpc.backends.qp import SOLVERS as QP_SOLVERS
+from aeromanip.nmpc.backends.qp import DenseQp
+from aeromanip.nmpc.backends.sqp import (
+    DEFAULTS,
+    EXACT_FROM_ITERATION,
+    HESSIANS,
+    OPTION_CHECKS,
+    SqpBackend,
+    _go_exact,
+)
+from aeromanip.nmpc.constraints import Bounds, UserConstraint
+from aeromanip.nmpc.controller import Controller
+from aeromanip.nmpc.model import RateModel
+from aeromanip.nmpc.problem import Problem
+from aeromanip.nmpc.strategies import Hierarchical, LevelSolver, Weighted, _solve_level
+from aeromanip.references import Constant
+from aeromanip.robot.loader import load_robot
+from aeromanip.tasks import CogAlignment, ControlRate, EndEffectorTracking
+from aeromanip.tasks.posture import Posture
+
+# --- the SQP's options: each one's valid edge and first invalid value -------------------------
+
+GOOD = {
+    "max_iter": [1, 50],
+    "tol": [0, 0.0, 1e-6],  # 0: only the acceptable level ends a solve
+    "acceptable_tol": [1e-12, 1],
+    "constr_viol_tol": [1e-12, 2.5],
+    "acceptable_iter": [1, 3],
+    "rti": [True, False],
+    "codegen": [True, False],
+    "hessian": list(HESSIANS),
+    "regularization": [0, 0.0, 1e-3],
+    "qpsol": ["auto", "daqp", "qpoases", "hpipm"],
+    "condense_max_horizon": [1, 40],
+    "qpsol_options": [{}],
+    "screen": [0, 0.0, 5.0],
+    "blas_threads": [None, 1, 2],
+}
+BAD = {
+    "max_iter": ([0, -1, 1.0, True, "5"], "an integer >= 1"),
+    "tol": ([-1e-12, math.inf, math.nan, True, "1e-6", None], "a finite number >= 0"),
+    "acceptable_tol": ([0, 0.0, -1.0, math.inf, False], "a finite number > 0"),
+    "constr_viol_tol": ([0.0, math.nan], "a finite number > 0"),
+    "acceptable_iter": ([0, 2.0], "an integer >= 1"),
+    "rti": ([1, "true", None], "true or false"),
+    "codegen": ([0, "false"], "true or false"),
+    "hessian": (["Exact", "newton", None], "one of ['auto', 'exact', 'gauss-newton']"),
+    "regularization": ([-1e-9, math.inf], "a finite number >= 0"),
+    "qpsol": (["DAQP", "osqp"], "one of ['auto', 'daqp', 'qpoases', 'hpipm']"),
+    "condense_max_horizon": ([0, 12.0], "an integer >= 1"),
+    "qpsol_options": ([[], "x"], "a table"),
+    "screen": ([-0.1, math.inf], "a finite number >= 0"),
+    "blas_threads": ([0, 1.0, True], "an integer >= 1"),
+}
+
+
+def test_every_option_is_checked():
+    assert set(OPTION_CHECKS) == set(DEFAULTS)
+    assert set(GOOD) == set(BAD) <= set(DEFAULTS)
+
+
+@pytest.mark.parametrize("key", sorted(GOOD))
+def test_an_options_valid_values_are_kept(key):
+    for value in GOOD[key]:
+        opts = SqpBackend.checked_options({key: value})
+        assert opts[key] is value
+        assert {k: v for k, v in opts.items() if k != key} == {
+            k: v for k, v in DEFAULTS.items() if k != key
+        }
+
+
+@pytest.mark.parametrize("key", sorted(BAD))
+def test_an_options_invalid_values_name_the_key_the_value_and_what_is_allowed(key):
+    values, allowed = BAD[key]
+    for value in values:
+        with pytest.raises(ConfigError) as e:
+            SqpBackend.checked_options({key: value})
+        assert str(e.value) == f"solver_options.{key}: {value!r} is not {allowed}"
+
+
+def test_defaults_pass_their_own_checks():
+    assert SqpBackend.checked_options(None) == DEFAULTS
+    assert SqpBackend.checked_options({}) == DEFAULTS
+
+
+# --- small helpers with a documented contract -------------------------------------------------
+
+
+def test_casadi_message_keeps_the_messages_and_drops_locations_suggestions_and_listings():
+    text = (
+        ".../casadi/core/function_internal.cpp:145: Error calling Ipopt::init for 'solver':\n"
+        ".../casadi/core/options.cpp:255: Unknown option: print_tim\n"
+        "Did you mean one of the following?\n"
+        '> "print_time"          [OT_BOOL]\n'
+    )
+    assert casadi_message(RuntimeError(text)) == "Unknown option: print_tim"
+    two = "first problem:\n.../x/y.cpp:1: second problem\n> listing"
+    assert casadi_message(RuntimeError(two)) == "first problem; second problem"
+    assert casadi_message(RuntimeError("  \n> only a listing")) == "> only a listing"
+
+
+def test_cache_dir_is_the_environment_variable_or_the_users_cache(monkeypatch, tmp_path):
+    monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path / "c"))
+    assert codegen.cache_dir() == tmp_path / "c"
+    monkeypatch.delenv("AEROMANIP_CACHE")
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert codegen.cache_dir() == Path(tmp_path) / ".cache" / "aeromanip"
+
+
+def test_a_warning_is_logged_once(caplog):
+    msg = "codegen: test_nmpc_contract warning"
+    codegen._warned.discard(msg)  # as if new in this process
+    with caplog.at_level(logging.WARNING):
+        codegen._warn_once(msg)
+        codegen._warn_once(msg)
+    assert [r.getMessage() for r in caplog.records].count(msg) == 1
+
+
+# --- the QP layer: a failed solve reports the QP solver's own status -----------------------------
+
+
+@pytest.mark.parametrize("solver", ["daqp", "qpoases"])
+def test_an_infeasible_screened_qp_reports_the_solvers_status_and_no_multipliers(solver):
+    """20 rows, one of them near its bound (so the first round is a screened 8-row QP):
+    ``x1 + x2 >= 5`` with ``|x| <= 1`` has no solution."""
+    n, m = 2, 20
+    A = np.random.default_rng(0).normal(size=(m, n))
+    lba, uba = np.full(m, -100.0), np.full(m, 100.0)
+    A[0], lba[0], uba[0] = (1.0, 1.0), 5.0, np.inf
+    args = (np.eye(n), np.zeros(n), A, lba, uba, -np.ones(n), np.ones(n))
+    res = DenseQp(n, m, solver).solve(*args)
+    assert res.ok is False
+    assert not res.lam_a.any()
+    opts = {"error_on_fail": False, "print_time": False, **QP_SOLVERS[solver]}
+    sparsity = {"h": ca.Sparsity.dense(n, n), "a": ca.Sparsity.dense(m, n)}
+    direct = ca.conic("direct", solver, sparsity, opts)
+    names = ("h", "g", "a", "lba", "uba", "lbx", "ubx")
+    direct(**dict(zip(names, args, strict=True)))
+    assert res.status == str(direct.stats()["return_status"]) != ""
+
+
+# --- hessian = "auto" (sqp.DEFAULTS and _go_exact's docstring) ----------------------------------
+
+
+def test_auto_hessian_goes_exact_at_the_first_short_step_or_the_seventh_iteration():
+    condensed = object()  # any model but the multiple-shooting one
+    assert not _go_exact(condensed, False, 1.0, 0)
+    assert not _go_exact(condensed, False, 1.0, EXACT_FROM_ITERATION - 1)
+    assert _go_exact(condensed, False, 1.0, EXACT_FROM_ITERATION)
+    assert EXACT_FROM_ITERATION == 6  # "the 7th iteration" of DEFAULTS' comment, 0-based
+    assert _go_exact(condensed, False, 0.5, 0)
+    assert _go_exact(condensed, True, 1.0, 0)  # once exact, exact for the solve
+
+
+# --- BLAS threads: set in the library NumPy loaded (its own getter reads them back) --------------
+
+
+def _numpy_openblas():
+    libs = Path(np.__file__).parent.parent / "numpy.libs"
+    found = sorted(libs.glob("*openblas*.so*")) if libs.is_dir() else []
+    if not found or not Path("/proc/self/maps").exists():
+        pytest.skip("needs Linux and NumPy's bundled OpenBLAS")
+    lib = ctypes.CDLL(str(found[0]))
+    for name in ("scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads",
+                 "openblas_get_num_threads64_", "openblas_get_num_threads"):  # fmt: skip
+        if hasattr(lib, name):
+            return str(found[0]), getattr(lib, name)
+    pytest.skip("OpenBLAS without a thread-count getter")
+
+
+def test_limit_blas_threads_sets_numpys_openblas():
+    path, get = _numpy_openblas()
+    before = get()
+    try:
+        for n in (2, 1):
+            assert path in codegen.limit_blas_threads(n)
+            assert get() == n
+    finally:
+        codegen.limit_blas_threads(before)
+
+
+# --- the hessian option reaches every QP of a solve ----------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def small_problem():
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    return pb
+
+
+@pytest.mark.parametrize(("hessian", "first"), [("exact", True), ("gauss-newton", False)])
+def test_the_hessian_option_is_the_one_every_qp_uses(small_problem, hessian, first):
+    opts = {"codegen": False, "hessian": hessian}
+    if "seed" in DEFAULTS:  # no IPOPT seed: every iterate comes from the SQP's own QPs
+        opts["seed"] = "none"
+    strat = Weighted(small_problem, "sqp", opts)
+    model = strat.solvers[0].backend.model
+    flags = []
+    step = model.step
+
+    def recording(*args, **kw):
+        flags.append(args[5] if len(args) > 5 else kw["exact"])
+        return step(*args, **kw)
+
+    model.step = recording
+    tr = strat.transcription
+    x0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
+    p = tr.parameters(x0, np.zeros(7), small_problem.stage_params(0.0))
+    w0 = tr.pack(np.repeat(x0[None], 4, 0), np.zeros((3, 7)), np.zeros(7))
+    assert strat.solve(p, [w0]).success
+    assert flags and set(flags) == {first}
+
+
+# --- warm start with rate responses: the guess starts from the measured rates --------------------
+
+TAU = np.array([0.3, 0.25, 0.2, 0.08, 0.0, 0.0, 0.05])  # s; joints 1-2 follow at once
+
+
+def test_guesses_start_from_the_measured_rates_which_then_decay_as_a_first_order_lag():
+    """Controller.step's ``rates`` are the actual rates at the plan's start: the first
+    guess (rest at x0) and the next one (the last plan shifted) start from them, and under
+    the guess's commands a lagged rate follows ``r' = (u - r) / tau``."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.1, Bounds.from_robot(x8), response_tau=TAU)
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    ctrl = Controller(pb, "weighted", "ipopt")
+    guesses = []
+    solve = ctrl.strategy.solve
+
+    def recording(p, gs):
+        guesses.append(np.array(gs[0]))
+        return solve(p, gs)
+
+    ctrl.strategy.solve = recording
+    tr, lag = ctrl.strategy.transcription, np.flatnonzero(TAU > 0)
+    x0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
+    rng = np.random.default_rng(5)
+    for k in range(2):
+        rates = rng.uniform(-0.3, 0.3, 7)
+        cmd = ctrl.step(x0, k * pb.dt, rates=rates)
+        assert cmd.status == "ok"
+        Z = guesses[k][tr.index_z]
+        _, U = tr.unpack(guesses[k])
+        np.testing.assert_allclose(Z[0, 14:], rates[lag], rtol=0, atol=1e-15)
+        # exact solution of the lag over one period with the command held
+        a = np.exp(-pb.dt / TAU[lag])
+        np.testing.assert_allclose(Z[1, 14:], U[0][lag] + a * (rates[lag] - U[0][lag]), atol=1e-12)
+        x0 = x0 + pb.dt * cmd.u
+
+
+def test_auto_qp_solver_is_dense_up_to_condense_max_horizon_then_sparse():
+    opts = {**DEFAULTS, "qpsol": "auto", "condense_max_horizon": 12}
+    assert [SqpBackend.pick_qp(opts, n) for n in (1, 12, 13, 100)] == ["daqp"] * 2 + ["hpipm"] * 2
+    for named in ("daqp", "qpoases", "hpipm"):
+        assert SqpBackend.pick_qp({**opts, "qpsol": named}, 1) == named
+        assert SqpBackend.pick_qp({**opts, "qpsol": named}, 100) == named
+
+
+def test_reset_with_a_wrong_previous_command_names_it(small_problem):
+    ctrl = Controller(small_problem, "weighted", "ipopt")
+    with pytest.raises(StateError, match=r"^u_prev: expected 7 values \(x, y, z, yaw, q1"):
+        ctrl.reset(u_prev=[0.0, 1.0])
+    with pytest.raises(StateError, match=r"^u_prev: expected 7 numbers"):
+        ctrl.reset(u_prev="fast")
+    ctrl.reset(u_prev=np.arange(7.0))
+    np.testing.assert_array_equal(ctrl.u_prev, np.arange(7.0))
+
+
+# --- the command reports the solver's effort; a solve over budget is a failure -----------------
+
+
+def _recorded(ctrl):
+    results = []
+    solve = ctrl.strategy.solve
+
+    def recording(p, gs):
+        results.append(solve(p, gs))
+        return results[-1]
+
+    ctrl.strategy.solve = recording
+    return results
+
+
+X0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
+
+
+def test_the_command_reports_the_iterations_and_time_of_its_solve(small_problem):
+    ctrl = Controller(small_problem, "weighted", "ipopt")
+    results = _recorded(ctrl)
+    cmd = ctrl.step(X0, 0.0)
+    assert cmd.status == "ok" and cmd.message == ""
+    assert cmd.iterations == results[0].iterations and cmd.iterations > 0
+    assert type(cmd.iterations) is int
+    assert cmd.solve_time_s == results[0].solve_time_s > 0
+
+
+def test_a_solve_over_the_time_budget_is_a_failure_that_says_both_times_in_ms(small_problem):
+    budget = 1e-7  # [s]: no solve is that fast
+    ctrl = Controller(small_problem, "weighted", "ipopt", time_budget_s=budget)
+    results = _recorded(ctrl)
+    cmd = ctrl.step(X0, 0.0)
+    t_ms = 1e3 * results[0].solve_time_s
+    assert results[0].success and cmd.status == "stopped"  # no earlier plan to fall back on
+    assert cmd.message == f"over budget: {t_ms:.1f} ms > {1e3 * budget:.1f} ms"
+    assert cmd.iterations == results[0].iterations
+    np.testing.assert_array_equal(cmd.u, np.zeros(7))
+
+
+# --- the sparse (HPIPM) QP model: its step check and its merit ---------------------------------
+
+
+@pytest.fixture(scope="module")
+def sparse_model(small_problem):
+    opts = {"codegen": False, "qpsol": "hpipm"}
+    if "seed" in DEFAULTS:
+        opts["seed"] = "none"
+    strat = Weighted(small_problem, "sqp", opts)
+    tr, model = strat.transcription, strat.solvers[0].backend.model
+    assert type(model).__name__ == "MultipleShootingModel"
+    p = tr.parameters(X0, np.zeros(7), small_problem.stage_params(0.0))
+    model.start(tr.pack(*rest(small_problem), np.zeros(7)), p, tr.lbg, tr.ubg, None, None, True)
+    return small_problem, tr, model, p
+
+
+def rest(pb, U=None):
+    """States rolled out from ``X0`` under commands ``U`` (default: rest)."""
+    U = np.zeros((pb.horizon, 7)) if U is None else U
+    X = X0 + np.vstack([np.zeros(7), np.cumsum(pb.dt * U, axis=0)])
+    return X, U
+
+
+def test_a_qp_step_that_leaves_a_variable_bound_on_either_side_is_not_a_solution(sparse_model):
+    """Steps along the dynamics (the gap rows hold exactly) that command the platform's x
+    beyond its speed limit: only a variable bound is crossed, on one side or the other."""
+    pb, tr, model, p = sparse_model
+    v = tr.pack(*rest(pb), np.zeros(7))
+    lin = model.linearize(v, p)
+    assert model._solved(lin, np.zeros_like(v)) == (True, "")
+    for side in (+1.0, -1.0):
+        U = np.zeros((pb.horizon, 7))
+        U[0, 0] = side * (pb.bounds.u_upper[0] + 0.5)
+        step = tr.pack(*rest(pb, U), np.zeros(7)) - v
+        ok, status = model._solved(lin, step)
+        assert not ok and status
+        U[0, 0] = side * 0.5 * pb.bounds.u_upper[0]  # inside: a solution of the rows
+        assert model._solved(lin, tr.pack(*rest(pb, U), np.zeros(7)) - v) == (True, "")
+
+
+def test_the_merit_pins_stage_zero_to_the_measured_state(sparse_model):
+    pb, tr, model, p = sparse_model
+    v = tr.pack(*rest(pb), np.zeros(7))
+    f0, viol0 = model.merit(v, p)
+    assert viol0 < 1e-12
+    for side in (+1.0, -1.0):
+        moved = v.copy()
+        moved[tr.index_x[0]] += side * 0.1
+        assert model.merit(moved, p) == (f0, viol0)
+
+
+# --- the SQP's answer is a KKT point of the NLP (its own multipliers, CasADi's derivatives) ------
+
+
+CONDENSED_MULTIPLIERS = (
+    "the condensed model leaves the dynamics rows' multipliers at 0 (CondensedModel.result: "
+    "'condensed away'), so its lam_g, lam_x are not the NLP's; see docs/testing.md"
+)
+
+
+@pytest.mark.parametrize(
+    "qpsol",
+    [
+        pytest.param("daqp", marks=pytest.mark.xfail(strict=True, reason=CONDENSED_MULTIPLIERS)),
+        "hpipm",
+    ],
+)
+def test_sqp_returns_multipliers_that_make_its_answer_stationary(small_problem, qpsol):
+    """``grad f + J_g^T lam_g + lam_x = 0`` (CasADi's sign convention), with ``lam_x``
+    nonzero only at an active variable bound."""
+    opts = {"codegen": False, "qpsol": qpsol, "tol": 1e-9}
+    if "seed" in DEFAULTS:
+        opts["seed"] = "none"
+    strat = Weighted(small_problem, "sqp", opts)
+    tr, backend = strat.transcription, strat.solvers[0].backend
+    p = tr.parameters(X0, np.zeros(7), small_problem.stage_params(0.0))
+    res = backend.solve(tr.pack(*rest(small_problem), np.zeros(7)), p, tr.lbg, tr.ubg)
+    assert res.success
+    kkt = ca.Function("kkt", [tr.w, tr.p], [ca.gradient(tr.f, tr.w), ca.jacobian(tr.g, tr.w)])
+    grad, J = (np.asarray(a) for a in kkt(res.w, p))
+    assert res.lam_x.shape == res.w.shape and res.lam_g.shape == (J.shape[0],)
+    stationarity = grad.ravel() + J.T @ res.lam_g + res.lam_x
+    lbw, ubw = tr.variable_bounds(p)
+    free = lbw < ubw  # a fixed variable (the measured stage 0) may be eliminated, its
+    assert free.sum() > 0.8 * free.size  # multiplier then unreported: any value holds
+    assert np.abs(stationarity[free]).max() < 1e-6 * (1.0 + np.abs(grad).max())
+    slack = np.minimum(res.w - lbw, ubw - res.w)
+    assert np.all(np.abs(res.lam_x[free & (slack > 1e-6)]) < 1e-8)
+
+
+# --- bounds and hierarchies: documented refusals and partial results ----------------------------
+
+
+def test_command_rate_bounds_must_be_positive_numbers():
+    b = Bounds.from_robot(load_robot("x8-3dof"))
+    assert b.with_accel(np.full(7, 2.0)).accel is not None
+    for bad in (np.r_[np.nan, np.ones(6)], np.r_[0.0, np.ones(6)], np.ones(6)):
+        with pytest.raises(ConfigError, match=r"^bounds\.acceleration: expected 7 values > 0"):
+            b.with_accel(bad)
+
+
+def test_a_failed_middle_level_keeps_the_higher_levels_solution():
+    """Three levels, the second one fails: the first level's solution is applied
+    (``partial``), with the first two levels reported and no third."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0, level=0)
+    pb.add_task(CogAlignment(), weight=1.0, level=1)
+    pb.add_task(Posture(["yaw"]), weight=1.0, level=2)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    h = Hierarchical(pb, "stagewise")
+    tr = h.transcription
+    n = tr.w.numel()
+
+    def failing(*args, **kw):
+        return NlpResult(np.full(n, np.nan), np.zeros(tr.g.numel()), np.zeros(n), np.nan,
+                         False, "Infeasible_Problem_Detected", 3, 0.0)  # fmt: skip
+
+    h.solvers[1].backend.solve = failing
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    res = h.solve(p, [tr.pack(*rest(pb), np.zeros(7))])
+    assert res.success and res.status == "partial: Infeasible_Problem_Detected"
+    assert [(r.level, r.success) for r in res.levels] == [(0, True), (1, False)]
+    assert len(res.level_w) == 1
+    np.testing.assert_array_equal(res.w, res.level_w[0])
+    assert abs(res.levels[0].loss) < 1e-12  # the applied solution is level 0's own
+
+
+def test_a_nan_in_either_side_of_a_box_is_refused():
+    b = Bounds.from_robot(load_robot("x8-3dof"))
+    for side in ("x_lower", "x_upper", "u_lower", "u_upper"):
+        values = getattr(b, side).copy()
+        values[5] = np.nan
+        kind = side[0]
+        with pytest.raises(ConfigError, match=rf"^bounds\.{kind}\.q2: must not be NaN"):
+            Bounds(**{**vars(b), side: values})
+
+
+def test_integer_time_constants_give_the_same_first_order_response():
+    """``a = exp(-dt / tau)``: whole seconds given as integers are seconds."""
+    ints, floats = np.array([1, 2, 0, 0, 0, 0, 3]), np.array([1.0, 2.0, 0, 0, 0, 0, 3.0])
+    A_i, B_i = RateModel(7, 0.1, ints).matrices(0.1)
+    A_f, B_f = RateModel(7, 0.1, floats).matrices(0.1)
+    np.testing.assert_array_equal(A_i, A_f)
+    np.testing.assert_array_equal(B_i, B_f)
+    lag_rows = 14 + np.arange(3)
+    np.testing.assert_allclose(np.diag(A_f)[lag_rows], np.exp(-0.1 / floats[[0, 1, 6]]))
+
+
+# --- a failed warm solve is retried cold; the step reports both attempts -------------------------
+
+
+class Scripted:
+    """A backend that answers from a script and records what it was given."""
+
+    def __init__(self, *answers):
+        self.answers, self.calls = list(answers), []
+
+    def solve(self, w0, p, lbg, ubg, lam_g0=None, lam_x0=None, shift=True):
+        self.calls.append((np.array(w0), lam_g0, lam_x0))
+        return self.answers.pop(0)
+
+
+def _result(ok, status, w, t, it):
+    return NlpResult(np.array(w, float), np.ones(2), np.ones(3), 1.0, ok, status, it, t)
+
+
+@pytest.mark.parametrize(
+    ("status", "restart"),
+    [("Infeasible_Problem_Detected", "w0"), ("Maximum_Iterations_Exceeded", "last")],
+)
+def test_a_failed_warm_solve_is_retried_cold_and_both_attempts_are_counted(status, restart):
+    w0, last = np.zeros(3), np.array([0.1, 0.2, 0.3])
+    backend = Scripted(_result(False, status, last, 0.25, 7), _result(True, "ok", last, 0.5, 3))
+    warm = _result(True, "ok", last, 0.1, 1)
+    st = LevelSolver([], SimpleNamespace(lbg=np.zeros(2)), backend, warm=warm)
+    res = _solve_level(st, np.zeros(1), w0, np.zeros(2))
+    assert (res.success, res.iterations, res.solve_time_s) == (True, 10, 0.75)
+    (w_warm, lam_g1, lam_x1), (w_cold, lam_g2, lam_x2) = backend.calls
+    np.testing.assert_array_equal(w_warm, w0)
+    assert lam_g1 is warm.lam_g and lam_x1 is warm.lam_x  # warm: the last multipliers
+    assert lam_g2 is None and lam_x2 is None  # the retry: cold
+    np.testing.assert_array_equal(w_cold, w0 if restart == "w0" else last)
+    assert st.warm is res
+
+
+# --- path constraints: rows and bounds at stages 1..N, without command rows at N ---------------
+
+
+def test_path_rows_at_each_stage_carry_their_own_constraints_bounds():
+    """``PathConstraint``: ``lower <= expression <= upper`` at stages 1..N; one that
+    uses the command is not applied at stage N (there is no command there)."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    pb.add_constraint(UserConstraint("height", lambda st: st.x[2], 0.5, 3.0))
+    pb.add_constraint(UserConstraint("yaw_rate", lambda st: st.u[3], -0.3, 0.2, uses_command=True))
+    tr = Weighted(pb, "ipopt").transcription
+    kind, stage = np.asarray(tr.g_kind), np.asarray(tr.g_stage)
+    lbg, ubg = np.asarray(tr.lbg, float).ravel(), np.asarray(tr.ubg, float).ravel()
+    X, U = rest(pb)
+    U[:, 3] = [0.1, -0.2, 0.05]
+    X = X0 + np.vstack([np.zeros(7), np.cumsum(pb.dt * U, axis=0)])
+    g = np.asarray(ca.Function("g", [tr.w, tr.p], [tr.g])(
+        tr.pack(X, U, np.zeros(7)), tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    )).ravel()  # fmt: skip
+    assert not np.any((stage == 0) & np.isin(kind, ["path", "terminal"]))
+    for k in (1, 2):
+        rows = np.flatnonzero((kind == "path") & (stage == k))
+        np.testing.assert_array_equal(lbg[rows], [0.5, -0.3])
+        np.testing.assert_array_equal(ubg[rows], [3.0, 0.2])
+        np.testing.assert_allclose(g[rows], [X[k, 2], U[k, 3]], atol=1e-15)
+    rows = np.flatnonzero((kind == "terminal") & (stage == 3))
+    np.testing.assert_array_equal((lbg[rows], ubg[rows]), ([0.5], [3.0]))
+    np.testing.assert_allclose(g[rows], [X[3, 2]], atol=1e-15)
+
+
+def test_condensed_qp_moves_each_state_bound_row_to_its_twin_one_stage_on():
+    """The dense QP's rows end with the bounded state entries (``state_idx`` into the
+    NLP's variables); after ``shift()`` each one is predicted by the same entry one stage
+    on (``stride`` variables later), or by itself at the last stage (10 stages: every
+    joint's bound rows at every stage)."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 10, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    opts = {"codegen": False, "qpsol": "daqp"}
+    if "seed" in DEFAULTS:
+        opts["seed"] = "none"
+    strat = Weighted(pb, "sqp", opts)
+    tr, model = strat.transcription, strat.solvers[0].backend.model
+    sidx, nk = model.state_idx, model.nk
+    assert sidx.size > 0 and model.qp.shift_rows.size == nk + sidx.size
+    where = {int(i): nk + r for r, i in enumerate(sidx)}
+    for r, i in enumerate(sidx):
+        assert model.qp.shift_rows[nk + r] == where.get(int(i) + tr.stride, nk + r)
+    assert any(int(i) + tr.stride in where for i in sidx)
