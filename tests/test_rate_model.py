@@ -271,3 +271,32 @@ def test_the_box_is_left_as_it_is_wherever_a_plan_can_keep_it():
     wide = tr.box_widening(p)
     assert 0 < least <= wide[1] <= stop
     assert not np.any(np.delete(wide, 1))
+
+
+def test_reach_bounds_the_braking_travel_so_skipping_the_recovery_loses_nothing():
+    """``RateModel.reach`` against the rollout of the hardest braking the bounds allow,
+    from random states; where it says a box cannot be left, the recovery plan agrees."""
+    rng = np.random.default_rng(11)
+    model = RateModel(7, 0.1, TAU)
+    pb = boxed_problem()
+    tr = Weighted(pb, "ipopt").transcription
+    b = pb.bounds
+    held = 0
+    for k in range(200):
+        speed = 0.5 if k % 2 else 0.05  # half of them slow: their box cannot be left
+        v, r = rng.normal(scale=speed, size=7), rng.normal(scale=speed, size=7)
+        z0 = model.initial(X0 + rng.normal(scale=0.2, size=7), v, r)
+        cut = ACCEL * 0.1
+        U = np.sign(v) * np.maximum(np.abs(v) - cut * np.arange(1, 61)[:, None], 0.0)
+        travel = np.abs(model.rollout(z0, U)[1:, :7] - z0[:7]).max(axis=0)
+        assert np.all(travel <= model.reach(z0, cut) + 1e-12)
+        brake = pb.model.recovery(z0, pb.horizon, cut, (b.x_lower, b.x_upper),
+                                  (b.u_lower, b.u_upper))  # fmt: skip
+        inside = (z0[:7] - model.reach(z0, cut) >= b.x_lower) & (
+            z0[:7] + model.reach(z0, cut) <= b.x_upper
+        )
+        if np.all(inside):
+            held += 1
+            assert np.all((brake >= b.x_lower - 1e-12) & (brake <= b.x_upper + 1e-12))
+    assert held > 50
+    assert tr.box_widening(tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))).max() == 0.0

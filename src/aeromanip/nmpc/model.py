@@ -111,6 +111,18 @@ class RateModel:
             Z[k + 1] = self.A @ Z[k] + self.B @ u
         return Z
 
+    def reach(self, z0: np.ndarray, max_change: np.ndarray) -> np.ndarray:
+        """Per DoF, a bound [m, rad] on the distance travelled while the command is brought
+        to zero as fast as allowed (``max_change`` per step): no rate exceeds the larger
+        of the actual one and the command, ``m``, until the command is zero (``n`` steps,
+        one held), and a lagging rate then covers at most ``m tau``."""
+        nx = self.nx
+        u = np.abs(z0[nx : 2 * nx])
+        m = np.maximum(u, np.abs(self.rates_of(z0)))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            n = np.where(u > 0, np.ceil(u / max_change), 0.0)
+        return m * (self.dt * (n + 1.0) + self.tau)
+
     def recovery(
         self,
         z0: np.ndarray,

@@ -363,13 +363,15 @@ class Transcription:
             return self._bounds_memo[1]
         lbw, ubw = self.lbw.copy(), self.ubw.copy()
         lbw[: self.nz] = ubw[: self.nz] = z0
-        b = self.problem.bounds
-        x_brake = self.model.recovery(
-            z0, self.N, self._max_change, (b.x_lower, b.x_upper), (b.u_lower, b.u_upper)
-        )
-        idx = self.index_x[1:]
-        lbw[idx] = np.minimum(lbw[idx], x_brake)
-        ubw[idx] = np.maximum(ubw[idx], x_brake)
+        b, x0 = self.problem.bounds, z0[: self.nx]
+        reach = self.model.reach(z0, self._max_change)  # no plan needed where it is short
+        if np.any(x0 - reach < b.x_lower) or np.any(x0 + reach > b.x_upper):
+            x_brake = self.model.recovery(
+                z0, self.N, self._max_change, (b.x_lower, b.x_upper), (b.u_lower, b.u_upper)
+            )
+            idx = self.index_x[1:]
+            lbw[idx] = np.minimum(lbw[idx], x_brake)
+            ubw[idx] = np.maximum(ubw[idx], x_brake)
         self._bounds_memo = (key, (lbw, ubw))
         return lbw, ubw
 
