@@ -107,6 +107,10 @@ class RateModel:
         """The augmented states (N+1, nz) under commands ``U`` (N, nx)."""
         Z = np.empty((len(U) + 1, self.nz))
         Z[0] = z0
+        if not self.has_response:  # x[k] = x[0] + dt (u[0] + ... + u[k-1]), v[k] = u[k-1]
+            Z[1:, : self.nx] = z0[: self.nx] + self.dt * np.cumsum(U, axis=0)
+            Z[1:, self.nx :] = U
+            return Z
         for k, u in enumerate(U):
             Z[k + 1] = self.A @ Z[k] + self.B @ u
         return Z

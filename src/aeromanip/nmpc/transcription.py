@@ -199,7 +199,8 @@ class Transcription:
         limits = problem.bounds.accel_limits
         #: per DoF, the most the command may change in one step (``inf``: unbounded)
         self._max_change = np.full(self.nx, np.inf) if limits is None else limits * problem.dt
-        self._bounds_memo: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None
+        #: the last ``variable_bounds``: (z0's bytes, (lbw, ubw), whether a plan was needed)
+        self._bounds_memo: tuple[bytes, tuple[np.ndarray, np.ndarray], bool] | None = None
 
     # -- building the NLP ---------------------------------------------------------------
     def _build(self, n_groups: int) -> None:
@@ -365,19 +366,22 @@ class Transcription:
         lbw[: self.nz] = ubw[: self.nz] = z0
         b, x0 = self.problem.bounds, z0[: self.nx]
         reach = self.model.reach(z0, self._max_change)  # no plan needed where it is short
-        if np.any(x0 - reach < b.x_lower) or np.any(x0 + reach > b.x_upper):
+        near = bool(np.any(x0 - reach < b.x_lower) or np.any(x0 + reach > b.x_upper))
+        if near:
             x_brake = self.model.recovery(
                 z0, self.N, self._max_change, (b.x_lower, b.x_upper), (b.u_lower, b.u_upper)
             )
             idx = self.index_x[1:]
             lbw[idx] = np.minimum(lbw[idx], x_brake)
             ubw[idx] = np.maximum(ubw[idx], x_brake)
-        self._bounds_memo = (key, (lbw, ubw))
+        self._bounds_memo = (key, (lbw, ubw), near)
         return lbw, ubw
 
     def box_widening(self, p: np.ndarray) -> np.ndarray:
         """Per DoF, how far [m, rad] ``variable_bounds(p)`` widens the state box (0: not)."""
         lbw, ubw = self.variable_bounds(p)
+        if not self._bounds_memo[2]:
+            return np.zeros(self.nx)
         idx = self.index_x[1:]
         with np.errstate(invalid="ignore"):  # inf - inf where a side is unbounded
             wide = np.maximum(self.lbw[idx] - lbw[idx], ubw[idx] - self.ubw[idx])
@@ -405,7 +409,11 @@ class Transcription:
     ) -> np.ndarray:
         """Variable vector for a trajectory (``v`` and ``r`` rolled out from the commands)."""
         w = np.empty(self.stride * self.N + self.nz)
-        w[self.index_z] = self.model.rollout(self.model.initial(X[0], u_prev, rates), U)
+        if self.model.has_response:
+            w[self.index_z] = self.model.rollout(self.model.initial(X[0], u_prev, rates), U)
+        else:  # z = [x; v], v[k] the command before stage k
+            w[self.index_v[0]] = u_prev
+            w[self.index_v[1:]] = U
         w[self.index_x] = X
         w[self.index_u] = U
         return w

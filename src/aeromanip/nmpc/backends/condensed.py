@@ -35,6 +35,7 @@ class CondensedModel:
     def __init__(self, tr: Transcription, opts: dict[str, Any]) -> None:
         self.tr, self.opts = tr, opts
         self.nU = tr.N * tr.nx
+        self.nw, self.ng = tr.w.numel(), tr.g.numel()  # the NLP's variables and rows
         U, p = ca.SX.sym("U", self.nU), ca.SX.sym("p", tr.p.numel())
         R, gc, Rh = self._condensed(U, p)
         self._compile(U, p, R, gc, Rh)
@@ -238,12 +239,12 @@ class CondensedModel:
         model rows' stay 0: condensed away)."""
         tr, nx, N = self.tr, self.tr.nx, self.tr.N
         Um = v.reshape(N, nx)
-        w = np.empty(tr.w.numel())
+        w = np.empty(self.nw)
         w[tr.index_z] = tr.model.rollout(p[: tr.nz], Um)
         w[tr.index_u] = Um
-        lam_g = np.zeros(tr.g.numel())
+        lam_g = np.zeros(self.ng)
         lam_g[self.keep] = lam_c[: self.nk]
-        lam_x = np.zeros(tr.w.numel())
+        lam_x = np.zeros(self.nw)
         lam_x[self.state_idx] = lam_c[self.nk :]
         lam_x[self.u_idx] = lam_v
         return w, lam_g, lam_x
