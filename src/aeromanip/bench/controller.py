@@ -95,7 +95,7 @@ class PlainIpopt:
 #: the closed loops' problems: kind -> (built-in scenario, overrides)
 KINDS: dict[str, tuple[str, list[str]]] = {
     "flight": ("flight", []),
-    "fast": ("flight", []),  # the reference FAST times faster (``_scenario``)
+    "fast": ("flight", []),  # the reference FAST times faster (``bench_scenario``)
     # far from the reference (the EE 0.9 m away), the platform at its box's corner and
     # turned, every joint within 0.1 rad of a limit
     "far": ("flight", ["initial_state=[0.5, -0.5, 1.4, 1.2, 1.47, -1.5, 2.1]"]),
@@ -103,7 +103,7 @@ KINDS: dict[str, tuple[str, list[str]]] = {
 }
 
 
-def _scenario(kind: str, duration: float) -> Scenario:
+def bench_scenario(kind: str, duration: float) -> Scenario:
     name, extra = KINDS[kind]
     sets = [f"duration={duration}", "sim=kinematic", *extra]
     sc = load_scenarios(name, sets)[""]
@@ -148,7 +148,7 @@ def run_variant(
 ) -> dict[str, Any]:
     """Closed loop of one variant: timing [ms], iterations, tracking and cost; with
     ``shadowed`` (a converged backend) also the IPOPT shadow's summary."""
-    sc = _scenario(kind, duration)
+    sc = bench_scenario(kind, duration)
     ctrl, step = _stepper(sc, strategy, backend, options)
     x = sc.x0.copy()
     for k in range(warmup):  # compile, load, fill caches; then start afresh
@@ -160,7 +160,7 @@ def run_variant(
     if shadowed:
         weighted = isinstance(ctrl.strategy, Weighted)
         shadow = IpoptShadow(ctrl) if weighted else IpoptHierarchyShadow(ctrl)
-    X, U, ts, its, fails = _closed_loop(sc, step, shadow)
+    X, U, ts, its, fails = closed_loop_steps(sc, step, shadow)
     ms = 1e3 * np.array(ts)
     return {
         "scenario": sc.name + (f" (reference x{FAST:g})" if kind == "fast" else ""),
@@ -175,13 +175,13 @@ def run_variant(
         "iterations_max": int(np.max(its)),
         "failures": int(fails),
         "partial_steps": int(getattr(step, "partial", 0)),
-        **_score(sc, X, U),
+        **closed_loop_score(sc, X, U),
         "commands": U.tolist(),
         **(shadow.summary() if shadow else {}),
     }
 
 
-def _closed_loop(
+def closed_loop_steps(
     sc: Scenario, step: Callable, shadow: IpoptShadow | IpoptHierarchyShadow | None
 ) -> tuple[np.ndarray, np.ndarray, list[float], list[int], int]:
     """The ideal loop ``x <- x + dt u``: states, commands, step times [s], iterations and
@@ -203,7 +203,7 @@ def _closed_loop(
     return np.array(xs), np.array(us), ts, its, fails
 
 
-def _score(sc: Scenario, X: np.ndarray, U: np.ndarray) -> dict[str, float]:
+def closed_loop_score(sc: Scenario, X: np.ndarray, U: np.ndarray) -> dict[str, float]:
     """Tracking RMSE, the closed-loop cost (every task's weighted stage cost along the
     flown trajectory), the largest bound violation and the share of steps at a
     velocity bound."""

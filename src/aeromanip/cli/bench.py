@@ -18,10 +18,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "what",
         nargs="?",
         default="all",
-        choices=["all", "kinematics", "controller", "stress", "render", "horizon"],
+        choices=["all", "kinematics", "controller", "stress", "peer", "render", "horizon"],
         help="what to measure; 'stress' (binding bounds, a far start, the clearance "
-        "binding: issue 14's targets) and 'horizon' (cold builds at N = 10..100, tens "
-        "of minutes) are not part of 'all'",
+        "binding: issue 14's targets), 'peer' (do-mpc on the flight problem, needs the "
+        "'bench' extra) and 'horizon' (cold builds at N = 10..100, tens of minutes) are "
+        "not part of 'all'",
     )
     p.add_argument(
         "--variant",
@@ -63,6 +64,18 @@ def _bench_render() -> dict:
     return r
 
 
+def _bench_peer(duration: float) -> dict:
+    """do-mpc beside aeromanip on the flight problem (needs the ``bench`` extra)."""
+    from aeromanip.bench.peer_dompc import bench_peer, format_peer, import_dompc
+
+    import_dompc()  # fail at once, with the install hint, if it is missing
+    print(f"do-mpc peer, flight problem, {duration:g} s closed loop per row:")
+    r = bench_peer(duration=duration)
+    print(format_peer(r))
+    print()
+    return r
+
+
 def run(args: argparse.Namespace) -> int:
     """Measure and print (and write ``--json``)."""
     from aeromanip.bench.controller import VARIANTS, bench_controller, format_controller
@@ -97,6 +110,8 @@ def run(args: argparse.Namespace) -> int:
         results["stress"] = r
         print(format_stress(r))
         print()
+    if args.what == "peer":
+        results["peer"] = _bench_peer(args.duration)
     if args.what in ("render", "all"):
         results["render"] = _bench_render()
     if args.what == "horizon":
