@@ -56,7 +56,9 @@ class SitlAutopilot:
     def __init__(self, sc: Scenario, url: str, state_hz: float = STATE_HZ) -> None:
         device, baud = parse_link(url)
         self.sc = sc
-        self.sim = PhysicsSimulator.from_options(sc.robot, {**sc.physics, "setpoint": "velocity"})
+        # PX4-like: velocity + yaw-rate set-points; the arm's targets are angles (ramps)
+        options = {**sc.physics, "setpoint": "velocity", "joint_setpoint": "ramp"}
+        self.sim = PhysicsSimulator.from_options(sc.robot, options)
         self.sim.reset(sc.x0)
         self.tick = 1.0 / self.sim.outer_rate_hz
         self.vehicle = Vehicle(sc.robot, sc.x0)

@@ -9,9 +9,10 @@ set-point is held in between. What the NMPC's command sets in the flight control
 (``setpoint``, as in PX4's offboard mode): ``"position"``, a position reference moving
 linearly within the control period from the plan's first state along the command ``u``,
 with ``u`` as velocity feed-forward; or ``"velocity"``, ``u`` as the velocity and yaw-rate
-set-point (no position loop: the NMPC closes it; each servo's ramp goes on from where
-the last one ended, the joint rate integrated by the servo). Inactive platform DoFs are
-held at their fixed values. Joint servos are MuJoCo position actuators (PD, see
+set-point (no position loop: the NMPC closes it). ``joint_setpoint = "rate"`` makes each
+servo's ramp go on from where the last one ended (the joint rate integrated by the servo)
+instead of starting at the plan's first joint angle. Inactive platform DoFs are held at
+their fixed values. Joint servos are MuJoCo position actuators (PD, see
 ``mjcf.servo_gains``) whose set-point is shifted every physics step to add velocity
 feed-forward and an integral term: ``tau = kp (q_ref - q) + kv (u_q - qdot) + ki int
 (q_ref - q)``. The per-step Python works on floats (no NumPy on 3-vectors, no per-step
@@ -48,9 +49,11 @@ from aeromanip.sim.mjcf import FREE_JOINT, K_M, SERVO_HZ, max_rotor_thrust, robo
 NOISE_KEYS = ("position", "yaw", "joints", "filter")
 OPTION_KEYS = (
     "rate_hz", "outer_rate_hz", "rotors", "seed", "noise", "gains", "servo_hz", "servo_i",
-    "setpoint",
+    "setpoint", "joint_setpoint",
 )  # fmt: skip
 SETPOINTS = ("position", "velocity")  # what a command sets in the flight controller
+# where each servo's ramp starts: the plan's first state, or where the last ramp ended
+JOINT_SETPOINTS = ("ramp", "rate")
 SERVO_I = 4.0  # [1/s] servo integral gain relative to kp (ki = SERVO_I kp)
 RATE_HZ = 500.0  # [Hz] default physics and attitude/rate-loop rate
 MIN_RATE_HZ = 100.0  # [Hz] lowest accepted physics rate
@@ -92,6 +95,9 @@ class PhysicsSimulator(Simulator):
         servo_hz: joint servo bandwidth at the largest joint inertia [Hz].
         servo_i: servo integral gain relative to kp [1/s].
         setpoint: ``"position"`` or ``"velocity"`` (module docstring).
+        joint_setpoint: ``"ramp"``: each servo ramps from the plan's first joint angle along
+            its rate; ``"rate"``: from where its last ramp ended (the rate command
+            integrated by the servo: a measured, noisy angle never resets it).
 
     Attributes:
         model, data: the MuJoCo model and data (open ``to_xml()`` in ``mujoco.viewer``).
@@ -115,11 +121,17 @@ class PhysicsSimulator(Simulator):
         servo_hz: float = SERVO_HZ,
         servo_i: float = SERVO_I,
         setpoint: str = SETPOINTS[0],
+        joint_setpoint: str = JOINT_SETPOINTS[0],
     ) -> None:
         self.spec = spec
-        if setpoint not in SETPOINTS:
-            raise ConfigError(f"physics.setpoint: {setpoint!r} is not one of {list(SETPOINTS)}")
+        for key, value, allowed in (
+            ("setpoint", setpoint, SETPOINTS),
+            ("joint_setpoint", joint_setpoint, JOINT_SETPOINTS),
+        ):
+            if value not in allowed:
+                raise ConfigError(f"physics.{key}: {value!r} is not one of {list(allowed)}")
         self.velocity_setpoint = setpoint == "velocity"
+        self.joint_rate_setpoint = joint_setpoint == "rate"
         self._read_options(rate_hz, outer_rate_hz, noise, seed, servo_i)
         self.h = 1.0 / self.rate_hz
         rotors = spec.platform.rotors if rotors is None else rotors
@@ -218,8 +230,9 @@ class PhysicsSimulator(Simulator):
                 raise ConfigError(f"physics.{key}: unknown key (choose from {OPTION_KEYS})")
             if key in ("noise", "gains") and not isinstance(value, Mapping):
                 raise ConfigError(f"physics.{key}: must be a table, got {value!r}")
-            if key == "setpoint" and value not in SETPOINTS:
-                raise ConfigError(f"physics.setpoint: {value!r} is not one of {list(SETPOINTS)}")
+            allowed = {"setpoint": SETPOINTS, "joint_setpoint": JOINT_SETPOINTS}.get(key)
+            if allowed is not None and value not in allowed:
+                raise ConfigError(f"physics.{key}: {value!r} is not one of {list(allowed)}")
             if key in ("rotors", "seed") and (
                 isinstance(value, bool) or not isinstance(value, int)
             ):
@@ -319,9 +332,9 @@ class PhysicsSimulator(Simulator):
         yaw0, yaw_rate = (self._fixed["yaw"], 0.0) if yi is None else (start[yi], u[yi])
         yaw0, yaw_rate = float(yaw0), float(yaw_rate)
         # per joint: qpos address, limits, 1 / kp, ki h, start and rate of the ramp, kv u_q;
-        # with velocity set-points a servo's ramp goes on from where the last one ended (a
-        # rate command integrated by the servo), else it starts at the plan's first state
-        ramp_start = self._servo_ref if self.velocity_setpoint else start[self._n_p :].tolist()
+        # the ramp starts at the plan's first state, or (joint_setpoint "rate") goes on
+        # from where the last one ended
+        ramp_start = self._servo_ref if self.joint_rate_setpoint else start[self._n_p :].tolist()
         servos = [
             (adr, lo, hi, 1.0 / kp, ki * self.h, q0, uq, kv * uq)
             for (adr, lo, hi, kp, kv, ki), q0, uq in zip(
