@@ -300,3 +300,30 @@ def test_reach_bounds_the_braking_travel_so_skipping_the_recovery_loses_nothing(
             assert np.all((brake >= b.x_lower - 1e-12) & (brake <= b.x_upper + 1e-12))
     assert held > 50
     assert tr.box_widening(tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))).max() == 0.0
+
+
+def test_a_discarded_step_leaves_the_previous_plan_flying():
+    """``Controller.discard`` (a solve too late to fly): the command in flight is the
+    previous plan's next one, whatever the discarded step computed."""
+    pb = problem(tau=None, accel=None, horizon=6)
+    ctrl = Controller(pb, "weighted", "ipopt")
+    first = ctrl.step(X0, 0.0)
+    late = ctrl.step(X0 + pb.dt * first.u + 0.05, pb.dt)
+    assert not np.allclose(late.u, first.plan_u[1])
+    ctrl.discard()
+    np.testing.assert_array_equal(ctrl.u_prev, first.plan_u[1])
+    ctrl.discard()  # nothing more to forget
+    np.testing.assert_array_equal(ctrl.u_prev, first.plan_u[1])
+
+
+def test_widening_is_reported_on_a_dof_bounded_on_one_side():
+    b = Bounds.from_robot(X8)
+    hi = b.x_upper.copy()
+    hi[0] = 0.5  # x <= 0.5 only
+    pb = Problem(X8, 20, 0.1, Bounds(b.names, b.x_lower, hi, b.u_lower, b.u_upper, ACCEL), TAU)
+    pb.add_task(EndEffectorTracking(Constant([0.3, 0.0, 0.5])), weight=10.0, level=0)
+    tr = Weighted(pb, "ipopt").transcription
+    x0, v = X0.copy(), np.array([0.2, 0, 0, 0, 0, 0, 0.0])
+    x0[0] = 0.501
+    wide = tr.box_widening(tr.parameters(x0, v, pb.stage_params(0.0), v))
+    assert wide[0] > 0.001 and not np.any(wide[1:])

@@ -29,7 +29,7 @@ from aeromanip.experiment.runlog import (
     read_summary,
     write_summary,
 )
-from aeromanip.experiment.scenario import Scenario
+from aeromanip.experiment.scenario import MAX_BOUND_VIOLATION, Scenario
 from aeromanip.interrupts import RunInterrupted, deferred
 from aeromanip.interrupts import clear as clear_interrupts
 from aeromanip.references import SinusoidPhases
@@ -85,7 +85,9 @@ def summarize(sc: Scenario, log: RunLog, interrupted: bool = False) -> dict[str,
 
 
 def verdict(
-    summary: dict[str, Any], max_failure_ratio: float, max_bound_violation: float = float("inf")
+    summary: dict[str, Any],
+    max_failure_ratio: float,
+    max_bound_violation: float = MAX_BOUND_VIOLATION,
 ) -> dict[str, Any]:
     """Did the run fly? Not if any step stopped the robot, if more than
     ``max_failure_ratio`` of its steps failed (fell back on the last plan or stopped), or

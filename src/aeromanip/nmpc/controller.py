@@ -105,6 +105,8 @@ class Controller:
         self._rates: np.ndarray | None = None  # the actual rates at the plan's start
         self._plan: tuple[np.ndarray, np.ndarray, int] | None = None  # X, U, steps since
         self._level_w: list[np.ndarray] = []  # each level's last solution (warm starts)
+        #: the memory before the last step (``discard``): u_prev, the plan, level solutions
+        self._before: tuple[np.ndarray, Any, list[np.ndarray]] | None = None
         self.strategy.reset()
 
     def _vector(self, v: Any, what: str) -> np.ndarray:
@@ -162,6 +164,7 @@ class Controller:
         responses; default: the last command, as if followed at once).
         """
         x_meas = self._vector(state, "state")
+        self._before = (self.u_prev.copy(), self._plan, self._level_w)
         if isinstance(t, bool) or not isinstance(t, int | float | np.number) or not np.isfinite(t):
             raise StateError(f"t: must be a finite number of seconds, got {t!r}")
         r0 = None if rates is None else self._vector(rates, "rates")
@@ -197,6 +200,21 @@ class Controller:
         return Command(
             u, X, U, task_costs, status, message, res.iterations, res.solve_time_s, res.levels
         )
+
+    def discard(self) -> None:
+        """Forget the last step's command and plan (e.g. it came too late to be flown):
+        the previous plan flies on, one step older, and its command for now is taken as
+        the command in flight (for the control-rate cost, the command-rate bounds, the
+        latency prediction and the fallback)."""
+        if self._before is None:
+            return
+        u_prev, plan, self._level_w = self._before
+        self._before = None
+        self.u_prev, self._plan = u_prev, None
+        if plan is not None and plan[2] + 1 < len(plan[1]):
+            Xp, Up, age = plan
+            self._plan = (Xp, Up, age + 1)
+            self.u_prev = Up[age + 1].copy()
 
     def _widened(self, p: np.ndarray) -> str:
         """Which DoFs' state box this solve widened to keep a plan feasible, and by how

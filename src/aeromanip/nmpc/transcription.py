@@ -361,7 +361,8 @@ class Transcription:
         z0 = np.asarray(p[: self.nz], dtype=float)
         key = z0.tobytes()
         if self._bounds_memo is not None and self._bounds_memo[0] == key:
-            return self._bounds_memo[1]
+            lbw, ubw = self._bounds_memo[1]
+            return lbw.copy(), ubw.copy()
         lbw, ubw = self.lbw.copy(), self.ubw.copy()
         lbw[: self.nz] = ubw[: self.nz] = z0
         b, x0 = self.problem.bounds, z0[: self.nx]
@@ -375,7 +376,7 @@ class Transcription:
             lbw[idx] = np.minimum(lbw[idx], x_brake)
             ubw[idx] = np.maximum(ubw[idx], x_brake)
         self._bounds_memo = (key, (lbw, ubw), near)
-        return lbw, ubw
+        return lbw.copy(), ubw.copy()
 
     def box_widening(self, p: np.ndarray) -> np.ndarray:
         """Per DoF, how far [m, rad] ``variable_bounds(p)`` widens the state box (0: not)."""
@@ -384,8 +385,9 @@ class Transcription:
             return np.zeros(self.nx)
         idx = self.index_x[1:]
         with np.errstate(invalid="ignore"):  # inf - inf where a side is unbounded
-            wide = np.maximum(self.lbw[idx] - lbw[idx], ubw[idx] - self.ubw[idx])
-        return np.nan_to_num(wide, nan=0.0).max(axis=0)
+            below = np.nan_to_num(self.lbw[idx] - lbw[idx], nan=0.0)
+            above = np.nan_to_num(ubw[idx] - self.ubw[idx], nan=0.0)
+        return np.maximum(below, above).max(axis=0)
 
     def parameters(
         self,

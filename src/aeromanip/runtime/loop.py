@@ -178,8 +178,9 @@ class RealtimeFlight:
                 cmd = self.ctrl.step(x, t, m.rates if rates_used else None)
             step_s = time.perf_counter() - c0
             miss = step_s > dt
-            if miss:
+            if miss:  # too late: the previous plan flies on, the controller forgets this one
                 self.stats.deadline_misses += 1
+                self.ctrl.discard()
             else:
                 self.follower.follow(Plan(t + lag, cmd.plan_x, cmd.plan_u, dt))
             count, gap = self.streamer.rate_between(last, now)

@@ -68,8 +68,9 @@ class Simulator(ABC):
         return self.state()
 
     def rates(self) -> np.ndarray | None:
-        """The actual rates ``dx/dt`` now [m/s, rad/s], as an autopilot estimates them;
-        ``None``: not measured (a controller then takes its last command as followed)."""
+        """The actual rates ``dx/dt`` now [m/s, rad/s] (the physics simulator's are exact,
+        without noise); ``None``: not measured (a controller then takes its last command
+        as followed)."""
         return None
 
     #: the simulator's time step [s] (commands and latencies must be whole multiples of

@@ -292,7 +292,7 @@ class PhysicsSimulator(Simulator):
         self.controller.reset(torque_trim=d.qfrc_bias[fv + 3 : fv + 6])
         servo_int = d.qfrc_bias[self._v_adr].copy()
         self._servo_int = servo_int.tolist()
-        #: with velocity set-points, where each servo's ramp ended (the next one goes on)
+        #: where each servo's ramp ended (joint_setpoint "rate": the next one goes on)
         self._servo_ref = [float(q) for q in x0[self._n_p :]]
         d.ctrl[: self.rotors] = self.controller.motors
         d.ctrl[self.rotors :] = x0[self._n_p :] + servo_int / self._kp

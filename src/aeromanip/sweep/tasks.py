@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from aeromanip.errors import ConfigError
 from aeromanip.experiment.runlog import SUMMARY_FILE
 from aeromanip.experiment.runner import run_scenarios
 from aeromanip.experiment.scenario import Scenario, build_scenario
@@ -50,7 +51,7 @@ def build_run(
     tables = expand_variants(data, list(overrides), variant)
     (name, table), *rest = tables.items()
     if rest:  # the campaign always picks a variant of a scenario that has some
-        raise ValueError(f"{len(tables)} variants: a run flies one (got variant {variant!r})")
+        raise ConfigError(f"{len(tables)} variants: a run flies one (got variant {variant!r})")
     return build_scenario(table, Path(base_dir), name)
 
 

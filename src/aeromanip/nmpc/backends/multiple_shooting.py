@@ -29,9 +29,10 @@ from aeromanip.nmpc.transcription import COUPLING, Transcription
 
 # HPIPM (robust mode) rarely reaches residuals of 1e-10 on these QPs and then runs all its
 # iterations (at N = 50 ~1 ms each). A converged SQP needs them: with looser residuals
-# (1e-8), or 25 iterations, the SQP stalls on the inexact steps short of tol = 1e-9 (seen
-# on flight-rates/20hz from rest). A real-time iteration takes one QP per control step:
-# residuals of 1e-8 (~8 iterations) are plenty there. (residual tolerance, iterations):
+# (1e-8), or 25 iterations, the SQP stalls on the inexact steps short of tol = 1e-9 (the
+# backend matrix test's, seen on flight-rates/20hz from rest). A real-time iteration takes
+# one QP per control step: residuals of 1e-8 (~8 iterations) are plenty there.
+# (residual tolerance, iterations):
 HPIPM_LIMITS = {"sqp": (1e-10, 50), "rti": (1e-8, 25)}
 
 

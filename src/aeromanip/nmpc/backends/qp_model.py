@@ -70,8 +70,9 @@ class QpModel(Protocol):
         damping: float = 0.0,
     ) -> QpResult:
         """The QP step from ``v`` (Gauss-Newton Hessian, or the exact one made positive
-        definite, plus ``damping`` times its largest diagonal entry on the diagonal), its
-        multipliers and whether the QP solver succeeded."""
+        definite, plus ``damping`` times its largest diagonal entry on the diagonal: a model
+        may ignore it, the sparse one does), its multipliers and whether the QP solver
+        succeeded."""
         ...
 
     def merit(self, v: np.ndarray, p: np.ndarray) -> tuple[float, float]:
