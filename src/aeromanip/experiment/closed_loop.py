@@ -17,7 +17,7 @@ import numpy as np
 from aeromanip.experiment.progress import Progress
 from aeromanip.experiment.runlog import RunLog, contract_columns
 from aeromanip.experiment.scenario import Scenario
-from aeromanip.interrupts import raise_if_interrupted
+from aeromanip.interrupts import deferred, raise_if_interrupted
 from aeromanip.nmpc.constraints import Clearance
 from aeromanip.nmpc.controller import Command, Controller
 from aeromanip.references import Waypoints
@@ -176,16 +176,19 @@ def fly(
         for k in range(sc.steps):
             raise_if_interrupted()
             t = k * dt
-            cmd = ctrl.step(sim.state(), t, sim.rates() if measure_rates else None)
-            row = maker.row(t, sim.true_state(), sim.ee_position(), cmd)
-            now = {n: v for n, v in sim.extras().items() if n in sim.instant_extras}
-            if lag > 0:
-                sim.advance(held_u, held_start, lag)
-            sim.advance(cmd.u, cmd.plan_x, dt - lag)
-            held_u, held_start = cmd.u, cmd.plan_x[0] + (dt - lag) * cmd.u
-            row.update(sim.extras())  # means over the period this row's command flew
-            row.update(now)  # values at this row's time, as the state
-            sink(row)
+            # a signal is raised between steps, never inside CasADi's or MuJoCo's C calls
+            # (one landing in a conversion of their results surfaced as a SystemError)
+            with deferred():
+                cmd = ctrl.step(sim.state(), t, sim.rates() if measure_rates else None)
+                row = maker.row(t, sim.true_state(), sim.ee_position(), cmd)
+                now = {n: v for n, v in sim.extras().items() if n in sim.instant_extras}
+                if lag > 0:
+                    sim.advance(held_u, held_start, lag)
+                sim.advance(cmd.u, cmd.plan_x, dt - lag)
+                held_u, held_start = cmd.u, cmd.plan_x[0] + (dt - lag) * cmd.u
+                row.update(sim.extras())  # means over the period this row's command flew
+                row.update(now)  # values at this row's time, as the state
+                sink(row)  # a step flown is a row kept
             if bar is not None:
                 bar.update(k + 1)
     finally:

@@ -309,19 +309,7 @@ class PhysicsSimulator(Simulator):
 
     def advance(self, u: np.ndarray, plan_x: np.ndarray, dt: float) -> None:
         """Fly ``dt`` [s] (a whole number of physics steps) tracking ramps from ``plan_x[0]``."""
-        n = math.floor(float(dt) * self.rate_hz + 0.5)
-        if n < 1 or abs(n * self.h - dt) > 1e-9:
-            raise ConfigError(
-                f"dt: {dt} s is not a positive multiple of the physics step {self.h} s"
-            )
-        u = np.asarray(u, dtype=float).ravel()
-        start = np.asarray(plan_x, dtype=float)
-        start = start[0] if start.ndim == 2 else start.ravel()
-        nx = self.spec.nx
-        if u.shape != (nx,) or start.shape != (nx,):
-            raise StateError(f"command: expected u and plan_x[0] of size {nx}")
-        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(start))):
-            raise StateError("command: u and plan_x[0] must be finite")
+        n, u, start = self._command(u, plan_x, dt)
         m, d, fc = self.model, self.data, self.controller
         p_ref = [self._fixed["x"], self._fixed["y"], self._fixed["z"]]
         v_ff = [0.0, 0.0, 0.0]
@@ -331,19 +319,7 @@ class PhysicsSimulator(Simulator):
         yi = self._yaw_idx
         yaw0, yaw_rate = (self._fixed["yaw"], 0.0) if yi is None else (start[yi], u[yi])
         yaw0, yaw_rate = float(yaw0), float(yaw_rate)
-        # per joint: qpos address, limits, 1 / kp, ki h, start and rate of the ramp, kv u_q;
-        # the ramp starts at the plan's first state, or (joint_setpoint "rate") goes on
-        # from where the last one ended
-        ramp_start = self._servo_ref if self.joint_rate_setpoint else start[self._n_p :].tolist()
-        servos = [
-            (adr, lo, hi, 1.0 / kp, ki * self.h, q0, uq, kv * uq)
-            for (adr, lo, hi, kp, kv, ki), q0, uq in zip(
-                self._servos, ramp_start, u[self._n_p :].tolist(), strict=True
-            )
-        ]
-        self._servo_ref = [
-            min(max(q0 + uq * n * self.h, lo), hi) for (_, lo, hi, *_r, q0, uq, _ff) in servos
-        ]
+        servos = self._servo_ramps(u, start, n)
         servo_int = self._servo_int
         fq, fv, h, every = self._free_q, self._free_v, self.h, fc.outer_every
         qpos, qvel, ctrl, xmat = self._qpos, self._qvel, self._ctrl, self._xmat_base
@@ -381,6 +357,41 @@ class PhysicsSimulator(Simulator):
         self._spread_mean = spread_sum / n
         self.time += n * self.h
         self.true_state()  # keeps the unwrapped yaw current
+
+    def _command(
+        self, u: np.ndarray, plan_x: np.ndarray, dt: float
+    ) -> tuple[int, np.ndarray, np.ndarray]:
+        """``advance``'s inputs checked: physics steps in ``dt``, ``u``, ``plan_x[0]``."""
+        n = math.floor(float(dt) * self.rate_hz + 0.5)
+        if n < 1 or abs(n * self.h - dt) > 1e-9:
+            raise ConfigError(
+                f"dt: {dt} s is not a positive multiple of the physics step {self.h} s"
+            )
+        u = np.asarray(u, dtype=float).ravel()
+        start = np.asarray(plan_x, dtype=float)
+        start = start[0] if start.ndim == 2 else start.ravel()
+        nx = self.spec.nx
+        if u.shape != (nx,) or start.shape != (nx,):
+            raise StateError(f"command: expected u and plan_x[0] of size {nx}")
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(start))):
+            raise StateError("command: u and plan_x[0] must be finite")
+        return n, u, start
+
+    def _servo_ramps(self, u: np.ndarray, start: np.ndarray, n: int) -> list[tuple]:
+        """Per joint: qpos address, limits, 1 / kp, ki h, start and rate of the ramp, kv u_q.
+        The ramp starts at the plan's first state, or (joint_setpoint "rate") goes on from
+        where the last one ended; where this one ends is kept."""
+        ramp_start = self._servo_ref if self.joint_rate_setpoint else start[self._n_p :].tolist()
+        servos = [
+            (adr, lo, hi, 1.0 / kp, ki * self.h, q0, uq, kv * uq)
+            for (adr, lo, hi, kp, kv, ki), q0, uq in zip(
+                self._servos, ramp_start, u[self._n_p :].tolist(), strict=True
+            )
+        ]
+        self._servo_ref = [
+            min(max(q0 + uq * n * self.h, lo), hi) for (_, lo, hi, *_r, q0, uq, _ff) in servos
+        ]
+        return servos
 
     def state(self) -> np.ndarray:
         """Measured NMPC state ``[active platform DoFs, q]``: the true one plus the
