@@ -243,7 +243,9 @@ def test_sigint_during_a_c_build_leaves_no_compiler_and_no_build_directory(
     cache, out = tmp_path / "cache", tmp_path / "out"
     args = ["flight", "--set", "sim=kinematic", "--set", f"controller.horizon={horizon}"]
     args += ["--set", "controller.backend=sqp"]
-    env = {"AEROMANIP_CODEGEN": "1", "AEROMANIP_CACHE": str(cache)}
+    scratch = tmp_path / "tmp"  # the run's TMPDIR: a killed gcc leaves its .s files there
+    scratch.mkdir()
+    env = {"AEROMANIP_CODEGEN": "1", "AEROMANIP_CACHE": str(cache), "TMPDIR": str(scratch)}
     p, console = start_run(tmp_path, out, args, env)
     try:
         wait_until(p, console, lambda: moment(cache), moment.__name__)
@@ -258,6 +260,7 @@ def test_sigint_during_a_c_build_leaves_no_compiler_and_no_build_directory(
             time.sleep(0.05)
         problems = [f"compiler left running: {cmd[:160]}" for cmd in compilers_of(cache).values()]
         problems += [f"build directory left: {d}" for d in build_dirs(cache)]
+        problems += [f"temporary file left: {f}" for f in scratch.iterdir()]
         if within_s is not None and latency >= within_s:
             problems.append(f"{latency:.2f} s from SIGINT to exit")
         assert not problems, "\n".join(problems)

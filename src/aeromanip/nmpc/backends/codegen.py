@@ -132,12 +132,14 @@ def _build_all(todo: list[tuple[ca.Function, CacheEntry]], cc: str) -> set[str]:
             try:
                 cmd = _generate(f, cc, Path(tmp), entry.lib.name)
                 with deferred():  # the compiler is started and recorded, or neither
-                    # its own process group: an interrupt kills gcc's cc1 and as too
+                    # its own process group: an interrupt kills gcc's cc1 and as too;
+                    # their temporary files go into the build directory (removed below)
                     proc = subprocess.Popen(
                         cmd,
                         stdout=subprocess.PIPE,
                         stderr=subprocess.STDOUT,
                         start_new_session=True,
+                        env={**os.environ, "TMPDIR": tmp},
                     )
                     jobs[-1] = (*jobs[-1][:2], proc, *jobs[-1][3:])
             except OSError as e:
