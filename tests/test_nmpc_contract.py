@@ -389,22 +389,11 @@ def test_the_merit_pins_stage_zero_to_the_measured_state(sparse_model):
 # --- the SQP's answer is a KKT point of the NLP (its own multipliers, CasADi's derivatives) ------
 
 
-CONDENSED_MULTIPLIERS = (
-    "the condensed model leaves the dynamics rows' multipliers at 0 (CondensedModel.result: "
-    "'condensed away'), so its lam_g, lam_x are not the NLP's; see docs/testing.md"
-)
-
-
-@pytest.mark.parametrize(
-    "qpsol",
-    [
-        pytest.param("daqp", marks=pytest.mark.xfail(strict=True, reason=CONDENSED_MULTIPLIERS)),
-        "hpipm",
-    ],
-)
+@pytest.mark.parametrize("qpsol", ["daqp", "hpipm"])
 def test_sqp_returns_multipliers_that_make_its_answer_stationary(small_problem, qpsol):
     """``grad f + J_g^T lam_g + lam_x = 0`` (CasADi's sign convention), with ``lam_x``
-    nonzero only at an active variable bound."""
+    nonzero only at an active variable bound: the NLP's multipliers, the model rows' too
+    (``daqp``: the condensed model, which recovers those the QP condensed away)."""
     opts = {"codegen": False, "qpsol": qpsol, "tol": 1e-9}
     if "seed" in DEFAULTS:
         opts["seed"] = "none"

@@ -83,7 +83,10 @@ class CondensedModel:
         with_exact = self.opts["hessian"] != "gauss-newton" and not self.opts["rti"]
         data = ca.Function(f"aeromanip_sqp_data_{tag}", [U, p], [R, J, gc, A, Jh])
         merit = ca.Function(f"aeromanip_sqp_merit_{tag}", [U, p], [ca.sumsqr(R), gc])
-        fs = [data, merit, tr.stage_costs]
+        lam_g = ca.SX.sym("lam_g", self.ng)  # the NLP's Lagrangian, for its multipliers
+        grad_l = ca.gradient(tr.f + ca.dot(lam_g, tr.g), tr.w)
+        lagr = ca.Function(f"aeromanip_sqp_lagw_{tag}", [tr.w, tr.p, lam_g], [grad_l])
+        fs = [data, merit, tr.stage_costs, lagr]
         if with_exact:  # of the Lagrangian: the rows' curvature (clearance, hierarchy) too
             lam = ca.SX.sym("lam", gc.numel())
             Hf = ca.densify(ca.hessian(ca.sumsqr(R) + ca.dot(lam, gc), U)[0])
@@ -91,8 +94,10 @@ class CondensedModel:
         fs = compiled_all(fs, self.opts["codegen"])  # built in parallel, once, cached
         self.data, self.merit_f = Buffered(fs[0]), Buffered(fs[1])
         tr.use_stage_costs(fs[2])
-        self.hess = Buffered(fs[3]) if with_exact else None
+        self.lagr_grad = Buffered(fs[3])
+        self.hess = Buffered(fs[4]) if with_exact else None
         self.nr, self.nc, self.nh = R.numel(), gc.numel(), Rh.numel()
+        self._sweep: np.ndarray | None = None  # built by _model_multipliers when first used
 
     def _qp_setup(self) -> None:
         """Command bounds, the rows that bind by design, shift maps and the QP solver."""
@@ -235,8 +240,9 @@ class CondensedModel:
     def result(
         self, v: np.ndarray, p: np.ndarray, lam_c: np.ndarray, lam_v: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The NLP's variables (states rolled out from the commands) and multipliers (the
-        model rows' stay 0: condensed away)."""
+        """The NLP's variables (states rolled out from the commands) and multipliers:
+        the QP's, and the model rows' (condensed away) from the NLP's stationarity in
+        the states."""
         tr, nx, N = self.tr, self.tr.nx, self.tr.N
         Um = v.reshape(N, nx)
         w = np.empty(self.nw)
@@ -247,4 +253,26 @@ class CondensedModel:
         lam_x = np.zeros(self.nw)
         lam_x[self.state_idx] = lam_c[self.nk :]
         lam_x[self.u_idx] = lam_v
+        lam_g[tr.gap_rows] = self._model_multipliers(w, p, lam_g, lam_x)
         return w, lam_g, lam_x
+
+    def _model_multipliers(
+        self, w: np.ndarray, p: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray
+    ) -> np.ndarray:
+        """The multipliers ``mu[k]`` of the model rows ``z[k+1] - A z[k] - B u[k] = 0``
+        (gap rows in stage order) that make the NLP stationary in the states ``z[1..N]``:
+        ``r[k] + mu[k-1] - A^T mu[k] = 0`` with ``mu[N] = 0``, where ``r[k]`` is the
+        gradient in ``z[k]`` of the Lagrangian without the model rows (``lam_g`` holds 0
+        there), plus the bound multipliers. Solved backwards from ``k = N``:
+        ``mu[k-1] = -sum_{j>=k} (A^T)^(j-k) r[j]``, one product with a matrix built once."""
+        tr, nz = self.tr, self.tr.nz
+        if self._sweep is None:
+            powers = [np.eye(nz)]
+            for _ in range(tr.N - 1):
+                powers.append(tr.model.A.T @ powers[-1])
+            self._sweep = np.zeros((tr.N * nz, tr.N * nz))
+            for k in range(tr.N):
+                for j in range(k, tr.N):
+                    self._sweep[k * nz : (k + 1) * nz, j * nz : (j + 1) * nz] = -powers[j - k]
+        r = self.lagr_grad(w, p, lam_g)[0] + lam_x
+        return self._sweep @ r[tr.index_z[1:]].ravel()
