@@ -122,3 +122,27 @@ def test_unknown_stress_case_is_one_clear_line():
 
     with pytest.raises(ConfigError, match="stress case 'windy': unknown"):
         bench_stress(["windy"])
+
+
+def test_profile_attributes_each_compiled_call_to_its_part():
+    """RTI runs no line search (no merit calls) and one QP a step; the converged SQP
+    evaluates the merit; the Python rest is what the timed calls leave of the step."""
+    from aeromanip.bench import profile
+    from aeromanip.nmpc.backends.codegen import Buffered
+    from aeromanip.nmpc.backends.nlpsol import NlpBackend
+
+    init, solve = Buffered.__init__, NlpBackend.solve
+    rows = profile.bench_profile(["rti", "weighted"], duration=10.0)
+    assert Buffered.__init__ is init and NlpBackend.solve is solve  # the timing is undone
+    rti, weighted = rows
+    for r in rows:
+        assert r["steps"] == 20
+        parts = r["parts_ms"]
+        assert parts["QP solver (DAQP)"] > 0 and parts["model: linearisation"] > 0
+        assert 0 < parts[profile.PYTHON] < r["mean_ms"]
+        assert sum(parts.values()) == pytest.approx(r["mean_ms"])
+        assert all(0 < share < 1 for _, share in r["python_top"])
+    assert rti["parts_ms"][profile.SEED] > 0  # the first step starts cold: IPOPT seeds it
+    assert "model: merit (line search)" not in rti["parts_ms"]
+    assert weighted["parts_ms"]["model: merit (line search)"] > 0
+    assert "| QP solver (DAQP) [ms] |" in profile.format_profile(rows)

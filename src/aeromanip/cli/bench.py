@@ -18,11 +18,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "what",
         nargs="?",
         default="all",
-        choices=["all", "kinematics", "controller", "stress", "peer", "render", "horizon"],
-        help="what to measure; 'stress' (binding bounds, a far start, the clearance "
-        "binding: issue 14's targets), 'peer' (do-mpc on the flight problem, needs the "
-        "'bench' extra) and 'horizon' (cold builds at N = 10..100, tens of minutes) are "
-        "not part of 'all'",
+        choices=[
+            "all",
+            "kinematics",
+            "controller",
+            "profile",
+            "stress",
+            "peer",
+            "render",
+            "horizon",
+        ],
+        help="what to measure; 'profile' (where a step's time goes: QP, compiled model, "
+        "Python), 'stress' (binding bounds, a far start, the clearance binding: issue "
+        "14's targets), 'peer' (do-mpc on the flight problem, needs the 'bench' extra) and "
+        "'horizon' (cold builds at N = 10..100, tens of minutes) are not part of 'all'",
     )
     p.add_argument(
         "--variant",
@@ -101,6 +110,14 @@ def run(args: argparse.Namespace) -> int:
         r = bench_controller(names, duration=args.duration)
         results["controller"] = r
         print(format_controller(r))
+        print()
+    if args.what == "profile":
+        from aeromanip.bench.profile import PROFILED, bench_profile, format_profile
+
+        print(f"where the step's time goes, flight problem, {args.duration:g} s closed loop:")
+        r = bench_profile(args.variant or list(PROFILED), duration=args.duration)
+        results["profile"] = r
+        print(format_profile(r))
         print()
     if args.what == "stress":
         from aeromanip.bench.stress import bench_stress, format_stress

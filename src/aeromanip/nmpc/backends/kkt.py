@@ -57,7 +57,7 @@ def complementarity(g: np.ndarray, lb: np.ndarray, ub: np.ndarray, lam: np.ndarr
     """Largest ``|lam| * distance to its bound`` (casadi sign: ``lam > 0`` at the upper one)."""
     if g.size == 0:
         return 0.0
-    with np.errstate(invalid="ignore"):
-        c = np.where(lam > 0, lam * (ub - g), np.where(lam < 0, lam * (lb - g), 0.0))
-    c = np.abs(c).max()
+    # the distance to the bound each multiplier belongs to (0 where it is 0: no 0 * inf)
+    dist = np.where(lam > 0, ub - g, np.where(lam < 0, lb - g, 0.0))
+    c = np.abs(lam * dist).max()
     return float(c) if np.isfinite(c) else np.inf
