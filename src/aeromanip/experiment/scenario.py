@@ -13,8 +13,10 @@ Layout (see the built-in files in ``aeromanip/scenarios/`` for documented exampl
                   [response] (per DoF name or "default": rate time constants [s])
     [bounds]      joints, velocity (bools), platform_box = { z = [lo, hi], ... },
                   platform_margin [m], joint_margin [rad] (the NMPC plans inside the
-                  box and joint limits shrunk by them), acceleration = { x = a, ...,
-                  default = a } [m/s^2, rad/s^2] (command-rate bounds)
+                  box and joint limits shrunk by them), margin_ramp [s] (the shrinking
+                  grows from 0 at the measured state to the margins over this time of
+                  the horizon; 0: at once), acceleration = { x = a, ..., default = a }
+                  [m/s^2, rad/s^2] (command-rate bounds)
     [clearance]   d_min, points, margin [m] (planned at d_min + margin; omit the table
                   for no self-collision constraint)
     [reference]   kind = "sinusoids" | "waypoints" | "lissajous" | "csv" | "constant" |
@@ -62,6 +64,7 @@ MAX_DURATION = 1e6  # [s] about 11.6 days
 MAX_STEPS = 10_000_000  # control steps in one run
 MAX_FAILURE_RATIO = 0.05  # a run with more failed steps than this share did not fly
 MAX_BOUND_VIOLATION = 0.02  # [m, rad] a run whose state left a bound by more did not fly
+MAX_MARGIN_RAMP_S = 60.0  # [s] bounds.margin_ramp
 
 
 @dataclass
@@ -193,6 +196,7 @@ def _bounds(t: Table, robot: RobotSpec) -> tuple[Bounds, Bounds]:
     for key, m in margins.items():
         if m < 0:
             raise ConfigError(f"{bt.key(key)}: must be >= 0, got {m}")
+    ramp = bt.float("margin_ramp", Bounds.margin_ramp, minimum=0.0, maximum=MAX_MARGIN_RAMP_S)
     flags = {"joint_limits": bt.bool("joints", True), "velocity_limits": bt.bool("velocity", True)}
     limits = Bounds.from_robot(robot, platform_box=box, **flags)
     if bt.has("acceleration"):
@@ -216,7 +220,7 @@ def _bounds(t: Table, robot: RobotSpec) -> tuple[Bounds, Bounds]:
                 f"{key}: {m:g} closes the bounds of {dof} [{lo:.4g}, {hi:.4g}] "
                 f"(at most {(hi - lo) / 2:.4g})"
             )
-    return limits, limits.tightened(shrink)
+    return limits, limits.tightened(shrink, ramp)
 
 
 def _weight(tt: Table, key: str, default: Any) -> Any:

@@ -27,7 +27,10 @@ class Bounds:
     and on how fast the command may change, ``|u[k] - u[k-1]| <= accel dt`` [m/s^2, rad/s^2]
     (the platform's and the joints' acceleration; ``None``: unbounded).
 
-    Unbounded entries are ``-inf``/``inf``.
+    Unbounded entries are ``-inf``/``inf``. ``margin`` (set by ``tightened``): per DoF,
+    how far the state bounds were shrunk [m, rad]; ``margin_ramp`` [s]: for this long
+    ahead a plan may use the margin where the vehicle would coast into it
+    (``return_bounds``); 0: never.
     """
 
     names: tuple[str, ...]
@@ -36,8 +39,12 @@ class Bounds:
     u_lower: np.ndarray
     u_upper: np.ndarray
     accel: np.ndarray | None = None
+    margin: np.ndarray | None = None
+    margin_ramp: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.margin_ramp) and self.margin_ramp >= 0):
+            raise ConfigError(f"bounds.margin_ramp: must be >= 0 s, got {self.margin_ramp}")
         if self.accel is not None:
             a = np.asarray(self.accel, dtype=float)
             if a.shape != (len(self.names),) or np.any(np.isnan(a)) or np.any(a <= 0):
@@ -95,23 +102,50 @@ class Bounds:
             xl[i], xu[i] = float(box[0]), float(box[1])
         return cls(names, xl, xu, ul, uu)
 
-    def tightened(self, margins: Mapping[str, float]) -> Bounds:
-        """The state bounds shrunk by ``margins`` (state name -> margin [m or rad]).
+    def tightened(self, margins: Mapping[str, float], ramp: float = 0.0) -> Bounds:
+        """The state bounds shrunk by ``margins`` (state name -> margin [m or rad]), with
+        ``ramp`` [s] of soft braking into them (``return_bounds``).
 
         Constraint tightening: a controller planning inside the tightened box keeps the
-        real system, which lags its references a little, inside the true one.
+        real system, which lags its references a little, inside the true one. Near an
+        active bound, though, the state fed back (noisy) is past the tightened bound
+        every other step, or its lagging rates carry it there: forcing the next predicted
+        states inside at once takes hard commands that the vehicle turns into jolts and
+        tilt, and the loop rings along the bound.
         """
         lo, hi = self.x_lower.copy(), self.x_upper.copy()
+        shrink = np.zeros(len(self.names))
         for name, m in margins.items():
             if name not in self.names:
                 raise ConfigError(f"bounds margin: unknown state {name!r}")
             i = self.names.index(name)
-            lo[i], hi[i] = lo[i] + m, hi[i] - m
+            lo[i], hi[i], shrink[i] = lo[i] + m, hi[i] - m, m
             if lo[i] > hi[i]:
                 raise ConfigError(f"bounds margin: {m} closes the bounds of {name}")
         return Bounds(
-            self.names, lo, hi, self.u_lower.copy(), self.u_upper.copy(), self.accel_limits
+            self.names,
+            lo,
+            hi,
+            self.u_lower.copy(),
+            self.u_upper.copy(),
+            self.accel_limits,
+            shrink,
+            float(ramp),
         )
+
+    def return_bounds(self, x_coast: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The bounds of a state predicted ``t`` [s] ahead, given ``x_coast``, where the
+        vehicle would be then with its commands set to zero: the tightened bounds, but a
+        plan may go as far into the margin as that coasting state, up to a share
+        ``1 - t / margin_ramp`` of the margin (all of it now, none from ``margin_ramp``
+        on). Braking into the margin is soft, coming back takes ``margin_ramp``, and a
+        plan can never go further out than the vehicle would coast."""
+        if self.margin is None or self.margin_ramp <= 0 or t >= self.margin_ramp:
+            return self.x_lower, self.x_upper
+        room = (1.0 - t / self.margin_ramp) * self.margin
+        above = np.clip(x_coast - self.x_upper, 0.0, room)
+        below = np.clip(self.x_lower - x_coast, 0.0, room)
+        return self.x_lower - below, self.x_upper + above
 
     @property
     def accel_limits(self) -> np.ndarray | None:
@@ -122,7 +156,16 @@ class Bounds:
 
     def with_accel(self, accel: np.ndarray | None) -> Bounds:
         """The same bounds with command-rate bounds ``accel`` (per DoF, ``inf``: none)."""
-        return Bounds(self.names, self.x_lower, self.x_upper, self.u_lower, self.u_upper, accel)
+        return Bounds(
+            self.names,
+            self.x_lower,
+            self.x_upper,
+            self.u_lower,
+            self.u_upper,
+            accel,
+            self.margin,
+            self.margin_ramp,
+        )
 
     def as_dict(self) -> dict[str, list[float]]:
         """Finite bounds keyed like the run log columns: ``q1``, ``x``, ``u_q1``, ..."""

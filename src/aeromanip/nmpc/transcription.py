@@ -357,7 +357,9 @@ class Transcription:
         (``RateModel.recovery``: each step as far into the box as the rates allow): a
         state outside its box, or whose rates carry it out before it can stop (lagging
         rates, command-rate bounds), would otherwise make every plan infeasible. The box
-        is kept wherever that plan keeps it; the widening ends where it is back inside."""
+        is kept wherever that plan keeps it; the widening ends where it is back inside.
+        Near a bound, the plan may first brake into the margin as far as the vehicle
+        would coast (``Bounds.return_bounds``, ``bounds.margin_ramp``)."""
         z0 = np.asarray(p[: self.nz], dtype=float)
         key = z0.tobytes()
         if self._bounds_memo is not None and self._bounds_memo[0] == key:
@@ -366,6 +368,12 @@ class Transcription:
         lbw, ubw = self.lbw.copy(), self.ubw.copy()
         lbw[: self.nz] = ubw[: self.nz] = z0
         b, x0 = self.problem.bounds, z0[: self.nx]
+        soft = min(self.N, int(np.ceil(b.margin_ramp / self.problem.dt)))
+        if soft > 0:  # where the vehicle would coast with its commands zeroed
+            coast = self.model.rollout(z0, np.zeros((soft, self.nx)))[:, : self.nx]
+            for k in range(1, soft + 1):
+                lo, hi = b.return_bounds(coast[k], k * self.problem.dt)
+                lbw[self.index_x[k]], ubw[self.index_x[k]] = lo, hi
         reach = self.model.reach(z0, self._max_change)  # no plan needed where it is short
         near = bool(np.any(x0 - reach < b.x_lower) or np.any(x0 + reach > b.x_upper))
         if near:
