@@ -72,6 +72,12 @@ CASES = {
     "rows with small norms": (np.diag([1e-3, -2e-3]), np.array([[0.0, 0.1]]), []),
     "tiny diagonal": (np.diag([1e-9, -1e-9]), np.array([[0.0, 1.0]]), []),
     "a fixed variable": (np.diag([2.0, -3.0, 1.0]), np.array([[1.0, 0.0, 1.0]]), [1]),
+    # its diagonal gets the row's C'C and the fixed variable's 1, both
+    "a fixed variable a row touches": (
+        np.diag([2.0, -3.0, 1.5]),
+        np.array([[0.0, 2.0, 1.0]]),
+        [1],
+    ),
     "no rows: reflected, floored": (np.diag([10.0, -1e-9]), np.zeros((0, 2)), []),
     "small spectrum: 1e-3 floor": (np.diag([0.01, -1e-12]), np.zeros((0, 2)), []),
     "rows cannot fix it": (np.diag([1.0, -1.0]), np.array([[1.0, 0.0]]), []),

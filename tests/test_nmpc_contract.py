@@ -11,6 +11,7 @@ DAQP / qpOASES give for the same QP).
 from __future__ import annotations
 
 import ctypes
+import hashlib
 import logging
 import math
 from pathlib import Path
@@ -23,6 +24,7 @@ import pytest
 from aeromanip.errors import ConfigError, StateError
 from aeromanip.nmpc.backends import codegen
 from aeromanip.nmpc.backends.base import NlpResult, casadi_message
+from aeromanip.nmpc.backends.cache import CacheEntry
 from aeromanip.nmpc.backends.qp import SOLVERS as QP_SOLVERS
 from aeromanip.nmpc.backends.qp import DenseQp
 from aeromanip.nmpc.backends.sqp import (
@@ -122,6 +124,33 @@ def test_casadi_message_keeps_the_messages_and_drops_locations_suggestions_and_l
     two = "first problem:\n.../x/y.cpp:1: second problem\n> listing"
     assert casadi_message(RuntimeError(two)) == "first problem; second problem"
     assert casadi_message(RuntimeError("  \n> only a listing")) == "> only a listing"
+    # CasADi's call-stack lines go; a message's own trailing letters stay
+    wrapped = (
+        "Error in Function::call for 'f' [SXFunction] at .../function.cpp:1458:\n"
+        ".../casadi/core/x.cpp:9: dimension mismatch for input X:"
+    )
+    assert casadi_message(RuntimeError(wrapped)) == "dimension mismatch for input X"
+    long = "> " + "y" * 300  # nothing kept: the text itself, cut at 200 characters
+    assert casadi_message(RuntimeError(long)) == long[:200]
+
+
+def test_a_cache_entry_records_a_checksum_that_sha256sum_can_check(tmp_path):
+    """The layout of the module docstring (``<lib>.sha256`` holding the hex digest, as
+    ``sha256sum`` prints it), read back with hashlib; a changed library is not valid."""
+    built = tmp_path / "build" / "f.so"
+    built.parent.mkdir()
+    payload = bytes(range(256)) * 5000  # > one hashing chunk
+    built.write_bytes(payload)
+    entry = CacheEntry(tmp_path / "f-abc.so")
+    assert not entry.valid()
+    entry.install(built)
+    recorded = (tmp_path / "f-abc.so.sha256").read_text()
+    assert recorded == hashlib.sha256(payload).hexdigest() + "\n"
+    assert entry.valid() and not built.exists()
+    entry.lib.write_bytes(payload[:-1])  # truncated
+    assert not entry.valid()
+    entry.discard()
+    assert not entry.lib.exists() and not (tmp_path / "f-abc.so.sha256").exists()
 
 
 def test_cache_dir_is_the_environment_variable_or_the_users_cache(monkeypatch, tmp_path):
