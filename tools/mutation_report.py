@@ -9,6 +9,14 @@ A mutant counts as killed when a test failed (``killed``) or it ran past mutmut'
 limit (``timeout``: an infinite loop is a detected bug); ``survived`` and ``no tests``
 count against the module; ``skipped`` and the type-checker's ``caught by type check``
 are not counted.
+
+A run in two phases (docs/testing.md: phase A on fast tests in this directory, phase B
+on its survivors in another copy with the full selection)::
+
+    python tools/mutation_report.py --phase-b ../mut_b              # the combined table
+    python tools/mutation_report.py --phase-b ../mut_b --remaining  # phase B's to-do list
+
+A mutant phase A did not kill takes phase B's verdict once phase B has checked it.
 """
 
 from __future__ import annotations
@@ -18,6 +26,7 @@ import re
 import subprocess
 import sys
 from collections import Counter, defaultdict
+from pathlib import Path
 
 LINE = re.compile(r"^\s*(?P<name>aeromanip\.\S+?__mutmut_\d+): (?P<status>.+)$")
 KILLED = {"killed", "timeout"}
@@ -30,12 +39,26 @@ def module_of(name: str) -> str:
     return mod.removeprefix("aeromanip.").replace(".", "/") + ".py"
 
 
-def results() -> list[tuple[str, str]]:
-    """(mutant name, status) for every mutant."""
+def results(where: Path | None = None) -> list[tuple[str, str]]:
+    """(mutant name, status) for every mutant of the mutmut directory ``where`` (default:
+    the current one)."""
     out = subprocess.run(
-        ["mutmut", "results", "--all", "true"], capture_output=True, text=True, check=True
+        ["mutmut", "results", "--all", "true"],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=where,
     ).stdout
     return [(m["name"], m["status"].strip()) for m in map(LINE.match, out.splitlines()) if m]
+
+
+def combined(rows: list[tuple[str, str]], phase_b: list[tuple[str, str]]) -> list[tuple[str, str]]:
+    """Phase A's verdicts, with phase B's for the mutants A did not kill (where B has one)."""
+    later = {name: status for name, status in phase_b if status not in NOT_COUNTED}
+    return [
+        (name, status if status in KILLED | NOT_COUNTED else later.get(name, status))
+        for name, status in rows
+    ]
 
 
 def table(rows: list[tuple[str, str]]) -> str:
@@ -67,8 +90,23 @@ def main() -> int:
     """Print the table, or the mutants not killed."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--survivors", action="store_true", help="list the mutants not killed")
+    p.add_argument("--phase-b", type=Path, metavar="DIR", help="phase B's mutmut directory")
+    p.add_argument(
+        "--remaining", action="store_true", help="phase A's unkilled mutants B has not checked"
+    )
     args = p.parse_args()
+    if args.remaining and args.phase_b is None:
+        p.error("--remaining needs --phase-b DIR")
     rows = results()
+    if args.phase_b is not None:
+        phase_b = results(args.phase_b)
+        if args.remaining:
+            done = {name for name, status in phase_b if status not in NOT_COUNTED}
+            for name, status in rows:
+                if status not in KILLED | NOT_COUNTED and name not in done:
+                    print(name)
+            return 0
+        rows = combined(rows, phase_b)
     if args.survivors:
         for name, status in sorted(rows):
             if status not in KILLED | NOT_COUNTED:
