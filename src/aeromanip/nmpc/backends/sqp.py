@@ -151,6 +151,7 @@ DAMPING_START = 1e-3
 DAMPING_GROWTH = 10.0
 PENALTY_MARGIN = 1.1  # the merit's penalty exceeds the largest multiplier by this factor
 PENALTY_FLOOR = 1e-8  # and by at least this
+SOLVED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")  # the loop's successful ends
 
 
 @BACKENDS.register("sqp")
@@ -290,19 +291,10 @@ class SqpBackend(Backend):
             if not np.isfinite(f):  # NaN in derivatives shows in the QP's solution
                 status = "Invalid_Number_Detected"
                 break
-            viol = 0.0 if o["rti"] else violation(lin.c, lin.lbc, lin.ubc)
-            kkt = np.inf  # the larger of stationarity and complementarity
-            if not o["rti"] and (it > 0 or lam_g0 is not None) and viol <= o["constr_viol_tol"]:
-                kkt = model.kkt_error(v, lin, lam_c, lam_v)
-                if kkt <= o["tol"] and viol <= o["tol"]:
-                    ok, status = True, "Solve_Succeeded"
-                    break
-            acceptable = acceptable + 1 if kkt <= o["acceptable_tol"] else 0
-            if acceptable >= o["acceptable_iter"] or (it >= max_iter and acceptable):
-                ok, status = True, "Solved_To_Acceptable_Level"
-                break
-            if it >= max_iter:
-                status = "Maximum_Iterations_Exceeded"
+            warm = lam_g0 is not None
+            status, acceptable = self._verdict(v, lin, lam_c, lam_v, it, warm, acceptable, max_iter)
+            if status:
+                ok = status in SOLVED
                 break
             qp = model.step(v, lin, lam_c, lam_v, p, exact, damping)
             it += 1
@@ -326,6 +318,35 @@ class SqpBackend(Backend):
         w, lam_g, lam_x = model.result(v, p, lam_c, lam_v)
         ok = ok and bool(np.all(np.isfinite(w)))
         return NlpResult(w, lam_g, lam_x, f, ok, status, it, time.perf_counter() - t0)
+
+    def _verdict(
+        self,
+        v: np.ndarray,
+        lin: Linearization,
+        lam_c: np.ndarray,
+        lam_v: np.ndarray,
+        it: int,
+        warm: bool,
+        acceptable: int,
+        max_iter: int,
+    ) -> tuple[str, int]:
+        """The loop's stopping test at an iterate: the status to stop with (``""``: go on)
+        and the count of iterations in a row at the acceptable level. The KKT error is
+        measured once the rows hold (not in RTI, nor before the first QP of a cold start,
+        whose multipliers are not yet the iterate's)."""
+        o = self.opts
+        viol = 0.0 if o["rti"] else violation(lin.c, lin.lbc, lin.ubc)
+        kkt = np.inf  # the larger of stationarity and complementarity
+        if not o["rti"] and (it > 0 or warm) and viol <= o["constr_viol_tol"]:
+            kkt = self.model.kkt_error(v, lin, lam_c, lam_v)
+            if kkt <= o["tol"] and viol <= o["tol"]:
+                return "Solve_Succeeded", acceptable
+        acceptable = acceptable + 1 if kkt <= o["acceptable_tol"] else 0
+        if acceptable >= o["acceptable_iter"] or (it >= max_iter and acceptable):
+            return "Solved_To_Acceptable_Level", acceptable
+        if it >= max_iter:
+            return "Maximum_Iterations_Exceeded", acceptable
+        return "", acceptable
 
 
 def _cheaper(a: NlpResult, b: NlpResult) -> NlpResult:
