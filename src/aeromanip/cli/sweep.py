@@ -14,8 +14,9 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from aeromanip.errors import ConfigError
 
@@ -41,7 +42,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sweep", help="run a parameter sweep or Monte-Carlo campaign on Ray")
     p.add_argument("scenario", help="built-in name or FILE.toml")
     p.add_argument("--out", metavar="DIR", required=True, help="the campaign's directory")
-    add = p.add_argument
+    _add_campaign_options(p.add_argument)
+    _add_execution_options(p.add_argument)
+    p.set_defaults(func=run)
+
+
+def _add_campaign_options(add: Callable[..., Any]) -> None:
+    """What the campaign flies: the swept and drawn keys, seeds, fixed overrides."""
     add(
         "--grid",
         action="append",
@@ -72,6 +79,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="override a scenario value in every run",
     )
     add("--variant", metavar="NAME", help="fly only this variant of the scenario")
+
+
+def _add_execution_options(add: Callable[..., Any]) -> None:
+    """Where and how it runs, and what it reports."""
     add("--address", metavar="ADDRESS", help="join this Ray cluster (default: a local Ray)")
     add("--workers", type=int, metavar="N", help="runs at once (default: all CPUs)")
     add(
@@ -96,7 +107,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     add("--quiet", action="store_true", help="no progress bar")
     add("--check", action="store_true", help="check everything, list the runs, run nothing")
-    p.set_defaults(func=run)
 
 
 def _names(text: str | None, option: str, count: int | None = None) -> tuple[str, ...] | None:
