@@ -595,3 +595,15 @@ def test_killed_run_leaves_its_rows_in_partial_and_out_untouched(tiny, tmp_path,
     # the dead run's lock file is left, but no longer held: the next run goes ahead
     assert main(["run", str(tiny), "--quiet", "--out", str(out)]) == 0
     assert read_json(tmp_path / "out.previous" / "summary.json") == complete
+
+
+def test_an_unknown_mujoco_gl_is_one_line_naming_the_variable(tmp_path):
+    """MuJoCo's import fails outright on a MUJOCO_GL value it does not know (even for a
+    kinematic run: the simulators are all discovered): one line, exit 2, nothing built."""
+    env = {**os.environ, "MUJOCO_GL": "foo"}
+    cmd = [sys.executable, "-m", "aeromanip.cli", "run", "flight", "--check"]
+    p = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=WAIT_S)
+    assert p.returncode == 2, p.stderr
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("aeromanip: error: MUJOCO_GL='foo': "), lines
+    assert "egl" in lines[0] and not list(tmp_path.iterdir())

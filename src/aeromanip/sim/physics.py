@@ -30,16 +30,27 @@ are exact means over every physics step of the period.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping
 from operator import add
 from pathlib import Path
 from typing import Any
 
-import mujoco
 import numpy as np
 
 from aeromanip.config import check_range
 from aeromanip.errors import ConfigError, StateError
+
+try:  # MuJoCo's import itself fails on a MUJOCO_GL it does not know (its renderer's check)
+    import mujoco
+except ImportError:
+    raise
+except RuntimeError as _e:
+    raise ConfigError(
+        f"MUJOCO_GL={os.environ.get('MUJOCO_GL', '')!r}: MuJoCo will not load with it "
+        f"({' '.join(str(_e).split())[:120]}); unset it, or set egl or osmesa (offscreen) "
+        "or glfw (a display)"
+    ) from None
 from aeromanip.robot.spec import PLATFORM_DOFS, RobotSpec
 from aeromanip.sim.base import SIMULATORS, Simulator
 from aeromanip.sim.feedback import FeedbackNoise
