@@ -316,6 +316,47 @@ def test_a_discarded_step_leaves_the_previous_plan_flying():
     np.testing.assert_array_equal(ctrl.u_prev, first.plan_u[1])
 
 
+def test_discarded_steps_age_the_flying_plan_until_it_runs_out():
+    """Each discarded step leaves the plan of the last flown step one step older: its
+    commands are taken in turn as the one in flight, and a failed solve falls back on the
+    next of them; past the plan's last command, the last one stays in flight and there is
+    no plan to fall back on (``stopped``)."""
+    pb = problem(tau=None, accel=None, horizon=3)
+    ctrl = Controller(pb, "weighted", "ipopt")
+    first = ctrl.step(X0, 0.0)
+    for k in (1, 2):  # the solve of step k comes too late: plan command k flies
+        ctrl.step(X0 + 0.01 * k, k * pb.dt)
+        ctrl.discard()
+        np.testing.assert_array_equal(ctrl.u_prev, first.plan_u[k])
+    ctrl.step(X0 + 0.03, 3 * pb.dt)
+    ctrl.discard()  # the plan had no fourth command: the third stays in flight
+    np.testing.assert_array_equal(ctrl.u_prev, first.plan_u[2])
+    ctrl.time_budget_s = 1e-12  # every solve now fails
+    assert ctrl.step(X0, 4 * pb.dt).status == "stopped"
+
+
+def test_after_a_discard_a_failed_solve_falls_back_on_the_plans_next_command():
+    pb = problem(tau=None, accel=None, horizon=4)
+    ctrl = Controller(pb, "weighted", "ipopt")
+    first = ctrl.step(X0, 0.0)
+    ctrl.step(X0 + 0.01, pb.dt)
+    ctrl.discard()  # plan command 1 flies
+    ctrl.time_budget_s = 1e-12
+    late = ctrl.step(X0, 2 * pb.dt)
+    assert late.status == "fallback"
+    np.testing.assert_array_equal(late.u, first.plan_u[2])
+
+
+def test_discarding_the_first_step_leaves_nothing_flying():
+    pb = problem(tau=None, accel=None, horizon=3)
+    ctrl = Controller(pb, "weighted", "ipopt")
+    ctrl.step(X0, 0.0)
+    ctrl.discard()  # the first solve came too late: no plan was ever flown
+    np.testing.assert_array_equal(ctrl.u_prev, np.zeros(7))
+    ctrl.time_budget_s = 1e-12
+    assert ctrl.step(X0, pb.dt).status == "stopped"
+
+
 def test_widening_is_reported_on_a_dof_bounded_on_one_side():
     b = Bounds.from_robot(X8)
     hi = b.x_upper.copy()
