@@ -21,7 +21,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from aeromanip.errors import ConfigError, StateError
+from aeromanip.errors import ConfigError, InfeasibleProblemError, StateError
 from aeromanip.nmpc.backends import codegen
 from aeromanip.nmpc.backends.base import NlpResult, casadi_message
 from aeromanip.nmpc.backends.cache import CacheEntry
@@ -568,6 +568,15 @@ def test_path_rows_at_each_stage_carry_their_own_constraints_bounds():
     rows = np.flatnonzero((kind == "terminal") & (stage == 3))
     np.testing.assert_array_equal((lbg[rows], ubg[rows]), ([0.5], [3.0]))
     np.testing.assert_allclose(g[rows], [X[3, 2]], atol=1e-15)
+
+
+def test_a_user_constraint_whose_bounds_cross_is_refused_by_its_name_and_entry():
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 2, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    pb.add_constraint(UserConstraint("ee_box", lambda st: st.x[:3], [0.0, 2.0, 0.5], 1.5))
+    with pytest.raises(InfeasibleProblemError, match=r"^constraint 'ee_box'\[1\]: lower is above"):
+        Weighted(pb, "ipopt")
 
 
 def test_condensed_qp_moves_each_state_bound_row_to_its_twin_one_stage_on():
