@@ -574,6 +574,8 @@ def test_a_user_constraint_whose_bounds_cross_is_refused_by_its_name_and_entry()
     x8 = load_robot("x8-3dof")
     pb = Problem(x8, 2, 0.5, Bounds.from_robot(x8))
     pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    pb.add_constraint(UserConstraint("level", lambda st: st.x[2], 1.0, 1.0))  # equal: fine
+    Weighted(pb, "ipopt")
     pb.add_constraint(UserConstraint("ee_box", lambda st: st.x[:3], [0.0, 2.0, 0.5], 1.5))
     with pytest.raises(InfeasibleProblemError, match=r"^constraint 'ee_box'\[1\]: lower is above"):
         Weighted(pb, "ipopt")
@@ -598,3 +600,41 @@ def test_condensed_qp_moves_each_state_bound_row_to_its_twin_one_stage_on():
     for r, i in enumerate(sidx):
         assert model.qp.shift_rows[nk + r] == where.get(int(i) + tr.stride, nk + r)
     assert any(int(i) + tr.stride in where for i in sidx)
+
+
+def test_the_second_order_correction_solves_the_last_qp_with_rows_taken_at_the_full_step():
+    """``CondensedModel.correction``: the last QP (its Hessian and gradient) with each row's
+    value taken at ``v + d`` less its linear part, ``c(v + d) - A d``, checked against
+    CasADi's qrqp on that QP built here, with a curved row (the end effector's horizontal
+    reach) that the plain step leaves. (From rest the step is long: the correction is not
+    better than the plain step here; the line search judges it by the merit.)"""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.6, 0.4, 0.3])), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+
+    def reach(st):  # the end effector's horizontal distance from the origin, squared
+        ee = st.kin.ee_position(st.x)
+        return ee[0] ** 2 + ee[1] ** 2
+
+    pb.add_constraint(UserConstraint("ee_near", reach, 0.0, 0.2**2))
+    strat = Weighted(pb, "sqp", {"codegen": False, "qpsol": "daqp", "seed": "none"})
+    tr, model = strat.transcription, strat.solvers[0].backend.model
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    v, lam_c, lam_v = model.start(
+        tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg, None, None, True
+    )
+    lin = model.linearize(v, p)
+    d = model.step(v, lin, lam_c, lam_v, p, False).d
+    soc = model.correction(v, d, lin, p)
+    assert soc.ok
+    A = lin.data[1]
+    c = model.merit_f(v + d, p)[1] - A @ d
+    H = model._last_H
+    qp = ca.conic("soc", "qrqp", {"h": ca.DM(H).sparsity(), "a": ca.DM(A).sparsity()},
+                  {"print_iter": False, "print_header": False, "print_info": False})  # fmt: skip
+    ref = qp(h=H, g=lin.grad, a=A, lba=lin.lbc - c, uba=lin.ubc - c,
+             lbx=model.lbU - v, ubx=model.ubU - v)  # fmt: skip
+    np.testing.assert_allclose(soc.d, np.asarray(ref["x"]).ravel(), atol=1e-6)
+    assert model.merit(v + d, p)[1] > 1e-3  # the row is curved and active: the correction
+    assert np.abs(c - lin.c).max() > 1e-3  # moves its bounds, and with them the answer

@@ -368,3 +368,16 @@ def test_widening_is_reported_on_a_dof_bounded_on_one_side():
     x0[0] = 0.501
     wide = tr.box_widening(tr.parameters(x0, v, pb.stage_params(0.0), v))
     assert wide[0] > 0.001 and not np.any(wide[1:])
+
+
+def test_a_failed_step_names_each_state_outside_its_bounds_and_only_those():
+    """The fallback's message lists the state entries beyond their hard bounds (a solve
+    cannot help those); one exactly at a bound is inside."""
+    bounds = Bounds.from_robot(X8, platform_box={"z": (0.8, 1.5)})
+    pb = Problem(X8, 3, 0.5, bounds)
+    pb.add_task(EndEffectorTracking(Constant([0.4, 0.3, 0.5])), weight=10.0)
+    ctrl = Controller(pb, "weighted", "ipopt", time_budget_s=1e-12)  # every solve fails
+    x0 = np.array([0.0, 0.0, 0.7, 0.0, -1.57, 1.6, 2.3])  # q1, q2 at a limit; z, q3 past
+    cmd = ctrl.step(x0, 0.0)
+    assert cmd.status == "stopped"
+    assert cmd.message.endswith(" (state z = 0.7 outside [0.8, 1.5]; q3 = 2.3 outside [-2.2, 2.2])")
