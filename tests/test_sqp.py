@@ -1,5 +1,6 @@
 """The ``sqp`` backend against independent truth (IPOPT on the same NLP), RTI, codegen."""
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -245,3 +246,31 @@ def test_multiplier_shift_maps_each_row_to_its_twin_one_stage_on(mode):
     for r, t in enumerate(sqp.qp.shift_rows):
         assert rows[t][0] == rows[r][0]
         assert rows[t][1] in (rows[r][1], rows[r][1] + 1)
+
+
+def test_the_residual_box_of_each_stage_bounds_its_cost_at_every_corner():
+    """``mode = "residual"``: each higher-level residual row ``i`` of stage ``k`` may move
+    ``delta_k`` either way from its optimal value ``R_i``, with ``delta_k`` the one that
+    makes ``(sum_i |R_i| + m_k delta_k)^2 = (sum_i |R_i|)^2 + m_k tol_k`` (``m_k`` rows,
+    ``tol_k = max(abs_tol, rel_tol |c*_k|)``): recomputed here from the rows' values."""
+    h = Hierarchical(make_problem(), mode="residual", rel_tol=1e-2, abs_tol=1e-6)
+    st = h.solvers[1]
+    tr = st.tr
+    U = np.tile([0.05, -0.02, 0.01, 0.0, 0.1, -0.1, 0.05], (tr.N, 1))
+    X = X0 + np.vstack([np.zeros(7), np.cumsum(0.5 * U, axis=0)])
+    w = tr.pack(X, U, np.zeros(7))
+    p = tr.parameters(X0, np.zeros(7), h.problem.stage_params(0.0))
+    c_star = np.linspace(1e-5, 3e-2, tr.N + 1)  # one per stage: both tolerances in play
+    lo, hi = h._residual_box(st, 0, w, p, c_star)
+    rows = np.asarray(tr.hier_rows[0], dtype=int)
+    R = np.asarray(ca.Function("g", [tr.w, tr.p], [tr.g])(w, p)).ravel()[rows]
+    stage = np.asarray(tr.g_stage)[rows]
+    assert len(np.unique(stage)) > 2
+    for k in np.unique(stage):
+        sel = stage == k
+        delta = 0.5 * (hi[sel] - lo[sel])
+        np.testing.assert_allclose(delta, delta[0], rtol=1e-6)  # one delta per stage
+        np.testing.assert_allclose(lo[sel], R[sel] - delta[0], rtol=0, atol=1e-14)
+        a, m = np.abs(R[sel]).sum(), sel.sum()
+        tol = max(1e-6, 1e-2 * c_star[k])
+        assert (a + m * delta[0]) ** 2 - a * a == pytest.approx(m * tol, rel=1e-6)
