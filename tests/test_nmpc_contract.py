@@ -35,7 +35,7 @@ from aeromanip.nmpc.backends.sqp import (
     SqpBackend,
     _go_exact,
 )
-from aeromanip.nmpc.constraints import Bounds, UserConstraint
+from aeromanip.nmpc.constraints import Bounds, Clearance, UserConstraint
 from aeromanip.nmpc.controller import Controller
 from aeromanip.nmpc.model import RateModel
 from aeromanip.nmpc.problem import Problem
@@ -638,3 +638,46 @@ def test_the_second_order_correction_solves_the_last_qp_with_rows_taken_at_the_f
     np.testing.assert_allclose(soc.d, np.asarray(ref["x"]).ravel(), atol=1e-6)
     assert model.merit(v + d, p)[1] > 1e-3  # the row is curved and active: the correction
     assert np.abs(c - lin.c).max() > 1e-3  # moves its bounds, and with them the answer
+
+
+def test_the_sparse_models_exact_hessian_blocks_are_the_nlps_lagrangian_hessian():
+    """``MultipleShootingModel._hessian_blocks(exact=True)``: each stage's block (its
+    state and command) and the terminal one are the blocks of the NLP's Lagrangian
+    Hessian ``f + lam' g`` (CasADi's derivatives; the model rows are linear, the problem
+    couples no two stages), plus the regularisation; with the clearance rows (curved) and
+    random multipliers on every row."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    pb.add_constraint(Clearance(0.1))
+    strat = Weighted(pb, "sqp", {"codegen": False, "qpsol": "hpipm", "seed": "none"})
+    tr, model = strat.transcription, strat.solvers[0].backend.model
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    U = np.tile([0.1, -0.05, 0.02, 0.1, 0.2, -0.1, 0.1], (pb.horizon, 1))
+    w = tr.pack(*rest(pb, U), np.zeros(7))
+    model.start(w, p, tr.lbg, tr.ubg, None, None, True)
+    lin = model.linearize(w, p)
+    lam = np.random.default_rng(5).normal(size=tr.g.numel())
+    Hs, HT = model._hessian_blocks(lin, lam, p, True)
+    L = tr.f + ca.dot(ca.DM(lam), tr.g)
+    H = np.asarray(ca.Function("H", [tr.w, tr.p], [ca.hessian(L, tr.w)[0]])(w, p))
+    reg, s, N = model.opts["regularization"], tr.stride, tr.N
+    for k in range(N):
+        block = H[k * s : (k + 1) * s, k * s : (k + 1) * s] + reg * np.eye(s)
+        np.testing.assert_allclose(Hs[k], block, atol=1e-9, rtol=1e-9)
+    np.testing.assert_allclose(HT, H[N * s :, N * s :] + reg * np.eye(tr.nz), atol=1e-9)
+    assert np.abs(Hs - 2.0 * np.einsum("kri,krj->kij", lin.data["J"], lin.data["J"])).max() > 1e-3
+
+
+def test_bounds_as_dict_lists_each_finite_bound_under_its_log_column():
+    """Keys as in log.csv (``z``, ``q1``, ``u_x``); a one-sided bound is listed (with its
+    infinite side), an unbounded entry is not."""
+    x8 = load_robot("x8-3dof")
+    b = Bounds.from_robot(x8, platform_box={"z": (0.8, np.inf)}, velocity_limits=False)
+    d = b.as_dict()
+    assert d["z"] == [0.8, np.inf]
+    assert d["q2"] == [-1.6, 1.6] and "x" not in d and "yaw" not in d
+    assert not any(k.startswith("u_") for k in d)  # no command bounds asked
+    v = Bounds.from_robot(x8).as_dict()
+    assert v["u_x"] == [-1.0, 1.0] and v["u_q3"] == [-1.0, 1.0] and "U_x" not in v
