@@ -62,6 +62,10 @@ def test_untightened_bounds_have_nothing_to_ramp():
     b = limits()
     assert b.margin is None
     np.testing.assert_array_equal(b.return_bounds(b.x_upper + 1.0, 0.0)[1], b.x_upper)
+    ramped = Bounds(b.names, b.x_lower, b.x_upper, b.u_lower, b.u_upper, margin_ramp=0.3)
+    lo, hi = ramped.return_bounds(b.x_upper + 1.0, 0.1)  # a ramp, but no margin to give
+    np.testing.assert_array_equal(hi, b.x_upper)
+    np.testing.assert_array_equal(lo, b.x_lower)
 
 
 def test_the_ramp_survives_adding_command_rate_bounds():

@@ -25,6 +25,7 @@ from aeromanip.errors import ConfigError, InfeasibleProblemError, StateError
 from aeromanip.nmpc.backends import codegen
 from aeromanip.nmpc.backends.base import NlpResult, casadi_message
 from aeromanip.nmpc.backends.cache import CacheEntry
+from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel
 from aeromanip.nmpc.backends.qp import SOLVERS as QP_SOLVERS
 from aeromanip.nmpc.backends.qp import DenseQp
 from aeromanip.nmpc.backends.sqp import (
@@ -204,6 +205,15 @@ def test_auto_hessian_goes_exact_at_the_first_short_step_or_the_seventh_iteratio
     assert EXACT_FROM_ITERATION == 6  # "the 7th iteration" of DEFAULTS' comment, 0-based
     assert _go_exact(condensed, False, 0.5, 0)
     assert _go_exact(condensed, True, 1.0, 0)  # once exact, exact for the solve
+
+
+def test_auto_hessian_on_the_sparse_model_goes_exact_near_a_solution_or_late():
+    sparse = object.__new__(MultipleShootingModel)  # only its type matters here
+    assert not _go_exact(sparse, False, 1.0, 1)
+    assert _go_exact(sparse, False, 1.0, 2)  # a full step from the second iteration
+    assert not _go_exact(sparse, True, 0.5, 2)  # back to Gauss-Newton after a short one
+    assert not _go_exact(sparse, False, 0.5, EXACT_FROM_ITERATION - 1)
+    assert _go_exact(sparse, False, 0.5, EXACT_FROM_ITERATION)  # where GN may cycle
 
 
 # --- BLAS threads: set in the library NumPy loaded (its own getter reads them back) --------------
@@ -418,18 +428,32 @@ def test_the_merit_pins_stage_zero_to_the_measured_state(sparse_model):
 # --- the SQP's answer is a KKT point of the NLP (its own multipliers, CasADi's derivatives) ------
 
 
+def floored_problem():
+    """The small problem with the platform's height bounded below at 0.98 m and the end
+    effector wanted low: a state bound binds (its multiplier enters the model rows')."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8, platform_box={"z": (0.98, 1.5)}))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.2])), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    return pb
+
+
 @pytest.mark.parametrize("qpsol", ["daqp", "hpipm"])
-def test_sqp_returns_multipliers_that_make_its_answer_stationary(small_problem, qpsol):
+@pytest.mark.parametrize("floored", [False, True], ids=["free", "state-bound-active"])
+def test_sqp_returns_multipliers_that_make_its_answer_stationary(small_problem, qpsol, floored):
     """``grad f + J_g^T lam_g + lam_x = 0`` (CasADi's sign convention), with ``lam_x``
     nonzero only at an active variable bound: the NLP's multipliers, the model rows' too
     (``daqp``: the condensed model, which recovers those the QP condensed away)."""
+    pb = floored_problem() if floored else small_problem
     opts = {"codegen": False, "qpsol": qpsol, "tol": 1e-9}
     if "seed" in DEFAULTS:
         opts["seed"] = "none"
-    strat = Weighted(small_problem, "sqp", opts)
+    strat = Weighted(pb, "sqp", opts)
     tr, backend = strat.transcription, strat.solvers[0].backend
-    p = tr.parameters(X0, np.zeros(7), small_problem.stage_params(0.0))
-    res = backend.solve(tr.pack(*rest(small_problem), np.zeros(7)), p, tr.lbg, tr.ubg)
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    res = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
+    if floored:  # a state bound binds: its multiplier is in play
+        assert np.abs(res.lam_x[tr.index_x[1:].ravel()]).max() > 1e-6
     assert res.success
     kkt = ca.Function("kkt", [tr.w, tr.p], [ca.gradient(tr.f, tr.w), ca.jacobian(tr.g, tr.w)])
     grad, J = (np.asarray(a) for a in kkt(res.w, p))

@@ -331,7 +331,8 @@ class MultipleShootingModel:
         self, lin: Linearization, lam_c: np.ndarray, p: np.ndarray, exact: bool
     ) -> tuple[np.ndarray, np.ndarray]:
         """Per stage: ``2 J'J`` (Gauss-Newton) or the exact Hessian of ``||r||^2 + lam'c``
-        (eigenvalues floored), plus the regularisation."""
+        (symmetrised, possibly indefinite: ``step`` falls back on Gauss-Newton where its
+        QP fails), plus the regularisation."""
         d, N, ns, nz = lin.data, self.N, self.ns, self.nz
         if exact and self.f_hess is not None and self.t_hess is not None:
             Z, U, P, zN, pN = self._split(d["v"], p)

@@ -365,11 +365,14 @@ def _go_exact(model: QpModel, exact: bool, alpha: float, it: int) -> bool:
     Condensed: Gauss-Newton converges slowly where residuals are large, so go exact at
     the first shortened step or the ``EXACT_FROM_ITERATION``-th iteration (its Hessian is
     convexified on the reduced problem). Multiple shooting: the exact stage blocks may be
-    indefinite, so only near a solution: after a full step, and back to Gauss-Newton
-    after a shortened one.
+    indefinite, so near a solution (after a full step; back to Gauss-Newton after a
+    shortened one) and from the ``EXACT_FROM_ITERATION``-th iteration on, where
+    Gauss-Newton may never converge (a large residual against an active state bound: it
+    cycled to the iteration limit); ``MultipleShootingModel.step`` falls back to
+    Gauss-Newton for an exact QP that fails or does not descend.
     """
     if isinstance(model, MultipleShootingModel):
-        return alpha == 1.0 and it >= 2
+        return (alpha == 1.0 and it >= 2) or it >= EXACT_FROM_ITERATION
     return exact or alpha < 1.0 or it >= EXACT_FROM_ITERATION
 
 
