@@ -1,9 +1,17 @@
 """Compiled CasADi Functions: built once, cached on disk, the same answers as in-process."""
 
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
 import casadi as ca
 import numpy as np
 import pytest
 
+from aeromanip.nmpc.backends import codegen
+from aeromanip.nmpc.backends.cache import CacheEntry, sha256_of
 from aeromanip.nmpc.backends.codegen import compiled
 from aeromanip.nmpc.controller import Controller
 from test_sqp import FAST, X0, make_problem
@@ -16,6 +24,7 @@ def test_compiled_functions_are_cached_and_agree(tmp_path, monkeypatch):
     x = ca.SX.sym("x", 3)
     f = ca.Function("aeromanip_test_f", [x], [ca.sin(x) * ca.sumsqr(x), ca.jacobian(x**3, x)])
     g = compiled(f)
+    assert f.class_name() == "SXFunction" and g.class_name() != "SXFunction"  # the library
     libs = list(tmp_path.glob("aeromanip_test_f-*.so"))
     assert len(libs) == 1
     v = np.array([0.3, -1.2, 2.0])
@@ -63,3 +72,126 @@ def test_a_large_build_is_announced_before_it_starts(caplog):
         assert announce_large_build([small, large])
     (record,) = caplog.records
     assert "aeromanip_large" in record.getMessage() and "hpipm" in record.getMessage()
+
+
+FAKE_CC = """\
+import json, os, sys, time
+json.dump({"pid": os.getpid(), "sid": os.getsid(0), "tmpdir": os.environ.get("TMPDIR"),
+           "args": sys.argv[1:]}, open(os.environ["FAKE_CC_LOG"], "w"))
+time.sleep(float(os.environ.get("FAKE_CC_SLEEP", "0")))
+if not os.environ.get("FAKE_CC_QUIET"):
+    print("fake-cc: reading the source", flush=True)
+    sys.stderr.buffer.write(b"fake-cc: \\xff not UTF-8\\n")
+    sys.stderr.write("fake-cc: error: nothing compiled here\\n")
+sys.exit(1)
+"""
+
+
+@pytest.fixture
+def fake_cc(tmp_path, monkeypatch):
+    """A compiler that records how it was started (pid, session, TMPDIR, arguments), may
+    sleep, then fails with a message on its standard error."""
+    script = tmp_path / "fake-cc"
+    script.write_text(f"#!{sys.executable}\n{FAKE_CC}")
+    script.chmod(0o755)
+    log = tmp_path / "fake-cc.json"
+    monkeypatch.setenv("CC", str(script))
+    monkeypatch.setenv("FAKE_CC_LOG", str(log))
+    monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(codegen, "_warned", set())
+    return log
+
+
+def test_a_build_runs_in_its_own_directory_and_session_and_its_errors_are_reported(
+    fake_cc, tmp_path, caplog
+):
+    """The compiler runs in a fresh ``build-<library>-*`` directory of the cache, which is
+    also its ``TMPDIR`` (where gcc leaves temporary files), in a session of its own (an
+    interrupt kills its whole group); the last line it prints ends the warning; the
+    Function then runs in-process and no build directory is left."""
+    x = ca.SX.sym("x", 2)
+    f = ca.Function("aeromanip_fake_cc", [x], [ca.sumsqr(x)])
+    with caplog.at_level("WARNING"):
+        assert compiled(f) is f
+    rec = json.loads(fake_cc.read_text())
+    build = Path(rec["tmpdir"])
+    assert build.parent == tmp_path / "cache" and build.name.startswith("build-aeromanip_fake_cc-")
+    assert any(a.startswith(str(build) + os.sep) and a.endswith(".c") for a in rec["args"])
+    assert rec["sid"] == rec["pid"] != os.getsid(0)  # a session leader: its own group
+    assert (  # its last line, of both outputs, whatever bytes came before
+        "codegen: compiling aeromanip_fake_cc failed (fake-cc: error: nothing compiled "
+        "here); evaluating in-process"
+    ) in caplog.text
+    assert not build.exists() and not list((tmp_path / "cache").glob("build-*"))
+
+
+def test_a_build_past_its_time_limit_is_killed_and_the_function_runs_in_process(
+    fake_cc, monkeypatch, caplog
+):
+    monkeypatch.setattr(codegen, "BUILD_TIMEOUT_S", 0.5)
+    monkeypatch.setenv("FAKE_CC_SLEEP", "30")
+    x = ca.SX.sym("x", 2)
+    f = ca.Function("aeromanip_slow_cc", [x], [ca.sumsqr(x)])
+    t0 = time.monotonic()
+    with caplog.at_level("WARNING"):
+        assert compiled(f) is f
+    assert time.monotonic() - t0 < 10.0
+    assert "compiling aeromanip_slow_cc timed out" in caplog.text
+    pid = json.loads(fake_cc.read_text())["pid"]
+    with pytest.raises(ProcessLookupError):  # killed and reaped
+        os.kill(pid, 0)
+
+
+def test_a_verified_library_that_will_not_load_is_discarded_and_named(
+    tmp_path, monkeypatch, caplog
+):
+    """A file whose checksum matches but which is no library (not ours): the warning
+    names it with the loader's last line, the entry is removed, the Function runs
+    in-process."""
+    monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
+    monkeypatch.setattr(codegen, "_warned", set())
+    x = ca.SX.sym("x", 2)
+    f = ca.Function("aeromanip_not_a_lib", [x], [ca.sumsqr(x)])
+    cc = codegen._compiler()
+    if cc is None:
+        pytest.skip("no C compiler")
+    lib = tmp_path / f"{f.name()}-{codegen._key(f, cc)}.so"
+    lib.write_bytes(b"not an ELF file")
+    CacheEntry(lib).checksum.write_text(sha256_of(lib) + "\n")
+    with caplog.at_level("WARNING"):
+        assert compiled(f) is f
+    (msg,) = [r.getMessage() for r in caplog.records if "loading" in r.getMessage()]
+    assert not lib.exists() and not CacheEntry(lib).checksum.exists()  # discarded
+    lib.write_bytes(b"not an ELF file")
+    with pytest.raises(RuntimeError) as err:  # the loader's own words, last line
+        ca.external(f.name(), str(lib))
+    last = str(err.value).strip().splitlines()[-1]
+    assert msg == f"codegen: loading {lib.name} failed ({last}); evaluating in-process"
+    lib.unlink()
+
+
+def test_a_silent_failing_compiler_and_one_that_cannot_start_are_reported(
+    fake_cc, monkeypatch, tmp_path, caplog
+):
+    monkeypatch.setenv("FAKE_CC_QUIET", "1")
+    x = ca.SX.sym("x", 2)
+    f = ca.Function("aeromanip_quiet_cc", [x], [ca.sumsqr(x)])
+    with caplog.at_level("WARNING"):
+        assert compiled(f) is f
+    assert "compiling aeromanip_quiet_cc failed (?); evaluating in-process" in caplog.text
+    broken = tmp_path / "broken-cc"  # an interpreter that does not exist: no process
+    broken.write_text("#!/nonexistent/interpreter\n")
+    broken.chmod(0o755)
+    monkeypatch.setenv("CC", str(broken))
+    g = ca.Function("aeromanip_broken_cc", [x], [ca.sumsqr(x)])
+    with caplog.at_level("WARNING"):
+        assert compiled(g) is g
+    assert "compiling aeromanip_broken_cc failed (" in caplog.text
+    assert not list((tmp_path / "cache").glob("build-*"))
+
+
+def test_codegen_switched_off_returns_the_function_itself(fake_cc):
+    x = ca.SX.sym("x", 2)
+    f = ca.Function("aeromanip_off_cc", [x], [ca.sumsqr(x)])
+    assert compiled(f, enabled=False) is f
+    assert not fake_cc.exists()  # no compiler was started
