@@ -14,6 +14,8 @@ import ctypes
 import hashlib
 import logging
 import math
+import signal
+import threading
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -707,3 +709,31 @@ def test_bounds_as_dict_lists_each_finite_bound_under_its_log_column():
     assert not any(k.startswith("u_") for k in d)  # no command bounds asked
     v = Bounds.from_robot(x8).as_dict()
     assert v["u_x"] == [-1.0, 1.0] and v["u_q3"] == [-1.0, 1.0] and "U_x" not in v
+
+
+def test_a_solve_cut_by_casadi_catching_ctrl_c_raises_it_again_only_where_python_would(
+    monkeypatch,
+):
+    """``nlpsol._reraise_interrupt``: in the main thread with Python's own SIGINT handler
+    the swallowed Ctrl-C becomes a ``KeyboardInterrupt``; with another handler (the
+    CLI's, which defers the signal) or in another thread it does not."""
+    from aeromanip.nmpc.backends import nlpsol
+
+    handlers = {signal.SIGINT: signal.default_int_handler}  # SIGINT's is what is asked
+    monkeypatch.setattr(nlpsol.signal, "getsignal", handlers.get)
+    with pytest.raises(KeyboardInterrupt):
+        nlpsol._reraise_interrupt()
+    raised = []
+
+    def in_thread():
+        try:
+            nlpsol._reraise_interrupt()
+        except KeyboardInterrupt:
+            raised.append(True)
+
+    worker = threading.Thread(target=in_thread)
+    worker.start()
+    worker.join()
+    assert raised == []
+    handlers[signal.SIGINT] = lambda *a: None
+    nlpsol._reraise_interrupt()  # another handler: nothing raised
