@@ -2,7 +2,10 @@
 
 ``RealtimeFlight.fly(sink)``: wait for the autopilot and the first state; stream hold
 setpoints for ``PRE_STREAM_S`` (PX4 takes offboard only after a second of stream); arm
-and switch to offboard, each checked; then every control period ``dt`` (wall clock):
+and switch to offboard, each checked; solve the first step from the held state before
+the mission clock starts (a cold solve takes several periods' worth of a warm one: the
+reference would set off without the vehicle), its plan flown from mission time 0; then
+every control period ``dt`` (wall clock):
 read the latest state, predict it forward by its age (``Measurement.predicted``), run
 ``Controller.step`` (its ``latency_s`` predicts on to when the command takes effect) and
 hand the plan to the follower, which the streaming thread follows at ``STREAM_HZ``.
@@ -32,6 +35,7 @@ import numpy as np
 from aeromanip.experiment.closed_loop import RowMaker, make_controller
 from aeromanip.experiment.scenario import Scenario
 from aeromanip.interrupts import deferred, raise_if_interrupted
+from aeromanip.nmpc.controller import Command
 from aeromanip.runtime.follower import GAIN, Plan, PlanFollower
 from aeromanip.runtime.measure import Measurement, MissionClock, StateReader
 from aeromanip.runtime.streamer import LINK_LOSS_S, STREAM_HZ, Streamer
@@ -113,8 +117,7 @@ class RealtimeFlight:
             self._sleep_until(time.monotonic() + PRE_STREAM_S)
             self.transport.arm(COMMAND_TIMEOUT_S)
             self.transport.set_mode("offboard", COMMAND_TIMEOUT_S)
-            self.clock.start()
-            self.stats.start_wall = time.time()
+            self._first_step(sink)
             self._steps(sink)
             self.stats.ending = "completed"
             self._hold()
@@ -156,10 +159,37 @@ class RealtimeFlight:
         s.link_lost, s.ending = True, "link lost"
         s.link_lost_age_s, s.link_lost_wall = self.streamer.lost_age, self.streamer.lost_wall
 
+    def _read(self) -> Measurement:
+        if (m := self.reader.read()) is None:
+            raise LinkError("no vehicle state")
+        return m
+
+    def _solve(self, m: Measurement, now: float, t: float) -> tuple[Command, np.ndarray, float]:
+        """``Controller.step`` at mission time ``t`` [s] from ``m`` predicted to ``now``
+        [s, monotonic]: the command, the state it started from, the step's wall time [s]."""
+        x = m.predicted(now)
+        rates = m.rates if self.ctrl.problem.model.has_response else None
+        c0 = time.perf_counter()
+        with deferred():
+            cmd = self.ctrl.step(x, t, rates)
+        return cmd, x, time.perf_counter() - c0
+
+    def _first_step(self, sink: Callable[[Row], None]) -> None:
+        """Step 0, solved before the clock starts from the state of the vehicle holding
+        still: its plan flies from mission time 0 on; no deadline applies to it."""
+        m = self._read()
+        now = time.monotonic()
+        cmd, x, step_s = self._solve(m, now, 0.0)
+        self._sleep_until(now)  # raises if the link was lost or a signal came meanwhile
+        self.clock.start()
+        self.stats.start_wall = time.time()
+        self._fly(cmd, 0.0)
+        self._log(sink, 0.0, cmd, x, 1e3 * m.age(now), step_s, False, (0, math.nan))
+
     def _steps(self, sink: Callable[[Row], None]) -> None:
-        dt, lag = self.sc.problem.dt, self.ctrl.latency_s
-        rates_used = self.ctrl.problem.model.has_response
-        k, last = 0, self.clock.at(0.0)
+        """Steps 1 on, each at its period's start (wall clock)."""
+        dt = self.sc.problem.dt
+        k, last = 1, self.clock.at(0.0)
         while k < self.sc.steps:
             self._sleep_until(self.clock.at(k * dt))
             now = time.monotonic()
@@ -169,34 +199,48 @@ class RealtimeFlight:
                 continue
             if (mode := self.transport.mode()) != "offboard":  # e.g. the pilot took over
                 raise LinkError(f"the autopilot left offboard (now {mode}): not commanding")
-            m = self.reader.read()
-            if m is None:
-                raise LinkError("no vehicle state")
-            x, t = m.predicted(now), self.clock.now()
-            c0 = time.perf_counter()
-            with deferred():
-                cmd = self.ctrl.step(x, t, m.rates if rates_used else None)
-            step_s = time.perf_counter() - c0
+            m, t = self._read(), self.clock.now()
+            cmd, x, step_s = self._solve(m, now, t)
             miss = step_s > dt
             if miss:  # too late: the previous plan flies on, the controller forgets this one
                 self.stats.deadline_misses += 1
                 self.ctrl.discard()
             else:
-                self.follower.follow(Plan(t + lag, cmd.plan_x, cmd.plan_u, dt))
-            count, gap = self.streamer.rate_between(last, now)
-            row = self.maker.row(t, x, None, cmd)
-            age_ms = 1e3 * m.age(now)
-            self.stats.state_ages_ms.append(age_ms)
-            row.update(
-                state_age_ms=age_ms,
-                step_ms=1e3 * step_s,
-                deadline_miss=float(miss),
-                setpoints=count,
-                setpoint_gap_ms=1e3 * gap,
-            )
-            sink(row)
+                self._fly(cmd, t)
+            stream = self.streamer.rate_between(last, now)
+            self._log(sink, t, cmd, x, 1e3 * m.age(now), step_s, miss, stream)
             last, k = now, k + 1
-            self.stats.steps += 1
+
+    def _fly(self, cmd: Command, t: float) -> None:
+        """Hand ``cmd``'s plan, solved at mission time ``t`` [s], to the follower."""
+        dt = self.sc.problem.dt
+        self.follower.follow(Plan(t + self.ctrl.latency_s, cmd.plan_x, cmd.plan_u, dt))
+
+    def _log(
+        self,
+        sink: Callable[[Row], None],
+        t: float,
+        cmd: Command,
+        x: np.ndarray,
+        age_ms: float,
+        step_s: float,
+        miss: bool,
+        stream: tuple[int, float],
+    ) -> None:
+        """Hand the step's row, with the runtime's columns, to ``sink``; count the step.
+        ``stream``: the setpoints sent since the last step and their largest gap [s]."""
+        row = self.maker.row(t, x, None, cmd)
+        self.stats.state_ages_ms.append(age_ms)
+        count, gap = stream
+        row.update(
+            state_age_ms=age_ms,
+            step_ms=1e3 * step_s,
+            deadline_miss=float(miss),
+            setpoints=count,
+            setpoint_gap_ms=1e3 * gap,
+        )
+        sink(row)
+        self.stats.steps += 1
 
     def _hold(self) -> None:
         """Hold where the vehicle is, arm still, and switch the autopilot to hold."""
