@@ -29,6 +29,7 @@ from aeromanip.experiment.runlog import RunLog
 from aeromanip.experiment.scenario import load_scenarios
 
 pytest.importorskip("pymavlink")
+pytestmark = pytest.mark.realtime  # the two processes fly against the wall clock
 
 HOST = "127.0.0.1"
 MISSION_S = 60.0
