@@ -30,8 +30,8 @@ def pytest_configure(config):
     config.addinivalue_line(
         "markers", "realtime: the test flies against the wall clock (no other test meanwhile)"
     )
-    if not hasattr(config, "workerinput"):  # the controller (or a run without workers)
-        config.aeromanip_lock_dir = tempfile.mkdtemp(prefix="aeromanip-tests-")
+    if getattr(config.option, "numprocesses", None) and not hasattr(config, "workerinput"):
+        config.aeromanip_lock_dir = tempfile.mkdtemp(prefix="aeromanip-tests-")  # -n's controller
 
 
 def pytest_unconfigure(config):
