@@ -447,6 +447,9 @@ def test_infeasible_qp_is_not_ok_and_keeps_the_memory(monkeypatch, solver, qp, r
     assert isinstance(res.status, str) and res.status
     assert len(calls) == rounds
     np.testing.assert_array_equal(solver_qp.lam_a, memory)
+    # a failed result still has the solver's last point, and no row multipliers
+    assert res.d.shape == (n,) and res.lam_x.shape == (n,)
+    np.testing.assert_array_equal(res.lam_a, np.zeros(m))
 
 
 def test_unknown_solver_is_a_config_error():
@@ -454,3 +457,112 @@ def test_unknown_solver_is_a_config_error():
     with pytest.raises(ConfigError, match="'osqp'"):
         DenseQp(2, 3, solver="osqp")
     assert issubclass(ConfigError, ValueError)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_options_check_accepts_each_solvers_own_silently_and_names_a_bad_one(capfd, solver):
+    """``check_options`` tries the options on a one-variable QP: a solver's defaults and a
+    valid option of its own pass without a word; an unknown option or solver is one line
+    naming the key and the offender."""
+    DenseQp.check_options(solver, {})
+    own = {"daqp": {"daqp": {"primal_tol": 1e-8}}, "qpoases": {"printLevel": "none"}}[solver]
+    DenseQp.check_options(solver, own)
+    assert capfd.readouterr().out == ""
+    with pytest.raises(ConfigError, match=rf"^solver_options\.qpsol_options: {solver} rejects "
+                       r"them: Unknown option: no_such$"):  # fmt: skip
+        DenseQp.check_options(solver, {"no_such": 1})
+    listed = r"'osqp' is not one of \['daqp', 'qpoases'\]$"
+    with pytest.raises(ConfigError, match=rf"^solver_options\.qpsol: {listed}"):
+        DenseQp.check_options("osqp", {})
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_solve_prints_nothing_and_the_default_shift_keeps_each_row(capfd, solver):
+    """CasADi's timing print is off; without ``shift_rows`` every row predicts itself."""
+    qp = crossed_row_instance("upper")
+    dense = DenseQp(2, 10, solver=solver)
+    lam = dense.solve(*qp).lam_a.copy()
+    assert capfd.readouterr().out == ""
+    dense.shift()
+    np.testing.assert_array_equal(dense.lam_a, lam)
+    assert np.count_nonzero(lam) == 1
+
+
+# -- the crossing tolerance: CROSS_TOL (1 + |d|_inf) --------------------------------------------
+def one_row_qp(side, bound, far=0):
+    """n = 1: ``min 1/2 d^2 -+ 0.5 d`` (unconstrained optimum +-0.5 towards ``side``) with
+    row 0 ``d`` bounded at ``bound`` on ``side``, the other side far, then ``far`` rows
+    that never bind; bounds on ``d`` far."""
+    upper = side == "upper"
+    A, lba, uba = far_rows(np.random.default_rng(3), far, 1)
+    A, lba, uba = (
+        np.vstack([[1.0], A]),
+        np.r_[-9.0 if upper else bound, lba],
+        np.r_[bound if upper else 9.0, uba],
+    )
+    g = np.array([-0.5 if upper else 0.5])
+    return np.eye(1), g, A, lba, uba, np.array([-5.0]), np.array([5.0])
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("side", ["upper", "lower"])
+@pytest.mark.parametrize(("excess", "added"), [(0.9, False), (1.1, True), (-0.5, False)])
+def test_a_screened_out_row_is_crossed_only_beyond_the_tolerance(
+    monkeypatch, solver, side, excess, added
+):
+    """The row (slack ~0.5 > screen: left out at first) is crossed by the unconstrained
+    optimum d = +-0.5 by ``excess`` times the tolerance 1e-6 (1 + 0.5): only beyond it is
+    the row added back (a second round, ending on the row); inside it, or on the row's
+    feasible side, the first answer stands."""
+    tol = 1e-6 * 1.5
+    bound = 0.5 - excess * tol if side == "upper" else -0.5 + excess * tol
+    qp = one_row_qp(side, bound, far=9)  # 10 rows: a first round of 8 can leave them out
+    dense = DenseQp(1, 10, solver=solver, screen=0.1)
+    calls = spy(monkeypatch, dense)
+    res = dense.solve(*qp)
+    assert res.ok
+    assert [r.tolist() for r, _ in calls] == ([[], [0]] if added else [[]])
+    optimum = 0.5 if side == "upper" else -0.5
+    assert res.d[0] == pytest.approx(bound if added else optimum, abs=1e-12)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("where", ["row upper", "row lower", "bound upper", "bound lower"])
+@pytest.mark.parametrize(("excess", "ok"), [(0.95, True), (1.05, False)])
+def test_a_solver_answer_is_accepted_within_the_tolerance_only(
+    monkeypatch, solver, where, excess, ok
+):
+    """The solver's answer is checked: one that crosses a row or a bound by more than
+    1e-6 (1 + |d|) is a failure (with the solver's status), less is accepted. The answer
+    is moved to 0.25 past the constraint by ``excess`` times that tolerance (1.25e-6)."""
+    H, g, A, lba, uba, lbx, ubx = one_row_qp("upper", 9.0)
+    sign = 1.0 if where.endswith("upper") else -1.0
+    limit = 0.25 * sign
+    if where.startswith("row"):
+        (uba if sign > 0 else lba)[0] = limit
+    else:
+        (ubx if sign > 0 else lbx)[0] = limit
+    dense = DenseQp(1, 1, solver=solver, always=np.array([True]))
+    q = dense._solver(1)
+    run = q.run
+
+    def answer_moved():
+        run()
+        q.out["x"][:] = limit + sign * excess * 1e-6 * 1.25
+
+    monkeypatch.setattr(q, "run", answer_moved)
+    res = dense.solve(H, g, A, lba, uba, lbx, ubx)
+    assert res.ok is ok
+    assert (res.status == "") is ok
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_row_whose_slack_is_the_screen_width_is_left_out_at_first(monkeypatch, solver):
+    """``screen``: a row with slack 0.25 at d = 0 and screen 0.25 is left out of the first
+    round (and added back, as the optimum 0.5 crosses it)."""
+    qp = one_row_qp("upper", 0.25, far=9)
+    dense = DenseQp(1, 10, solver=solver, screen=0.25)
+    calls = spy(monkeypatch, dense)
+    res = dense.solve(*qp)
+    assert res.ok and res.d[0] == pytest.approx(0.25, abs=1e-12)
+    assert [r.tolist() for r, _ in calls] == [[], [0]]

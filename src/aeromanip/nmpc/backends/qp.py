@@ -48,7 +48,8 @@ class DenseQp:
     Args:
         n, m: sizes.
         solver: ``"daqp"`` or ``"qpoases"``; options: its extra options.
-        screen: rows whose slack exceeds this are left out of the solver's first try.
+        screen: rows whose slack (at d = 0) is this or more are left out of the solver's
+            first try.
         always: rows always given to the solver (e.g. those that bind by design).
         shift_rows: for each row, the one that predicts it after the horizon moves a step
             on (``shift()``).
