@@ -29,7 +29,7 @@ from aeromanip.nmpc.backends.base import NlpResult, casadi_message
 from aeromanip.nmpc.backends.cache import CacheEntry
 from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel
 from aeromanip.nmpc.backends.qp import SOLVERS as QP_SOLVERS
-from aeromanip.nmpc.backends.qp import DenseQp
+from aeromanip.nmpc.backends.qp import DenseQp, QpResult
 from aeromanip.nmpc.backends.sqp import (
     DEFAULTS,
     EXACT_FROM_ITERATION,
@@ -696,6 +696,40 @@ def test_the_sparse_models_exact_hessian_blocks_are_the_nlps_lagrangian_hessian(
         np.testing.assert_allclose(Hs[k], block, atol=1e-9, rtol=1e-9)
     np.testing.assert_allclose(HT, H[N * s :, N * s :] + reg * np.eye(tr.nz), atol=1e-9)
     assert np.abs(Hs - 2.0 * np.einsum("kri,krj->kij", lin.data["J"], lin.data["J"])).max() > 1e-3
+
+
+@pytest.mark.parametrize(
+    ("exact_step", "ok", "kept"),
+    [
+        ([0.1, -0.2], True, True),  # descends (grad'd = -0.3): the exact step is taken
+        ([0.1, -0.2], False, False),  # the exact QP failed
+        ([1e3 + 1.0, -2e3], True, False),  # longer than MAX_STEP: an unbounded QP
+        ([1e3, -1e3], True, True),  # exactly MAX_STEP long, descending: taken
+        ([0.3, 0.2], True, False),  # ascends a little (grad'd = 0.7)
+        ([0.2, -0.1], True, True),  # grad'd = 0 exactly: not an ascent
+    ],
+)
+def test_the_sparse_models_exact_step_falls_back_on_gauss_newton(exact_step, ok, kept):
+    """``MultipleShootingModel.step(exact=True)``: where the exact Hessian's QP fails,
+    gives a step longer than ``MAX_STEP`` or one that does not descend (``grad'd > 0``),
+    the Gauss-Newton QP's step is taken instead; either is moved by the iterate's clipping
+    (``lin.data["v"] - v``). The two QPs are stand-ins returning the given steps."""
+    model = object.__new__(MultipleShootingModel)
+    gn_step = np.array([-0.05, 0.01])
+    model._hessian_blocks = lambda lin, lam, p, exact: ("exact" if exact else "gn", None)
+    model._qp = lambda lin, kind, _: (
+        QpResult(np.array(exact_step, float), np.zeros(1), np.zeros(2), ok, "" if ok else "x")
+        if kind == "exact"
+        else QpResult(gn_step.copy(), np.zeros(1), np.zeros(2), True, "")
+    )
+    v, clipped = np.array([0.0, 0.0]), np.array([0.01, 0.0])
+    lin = SimpleNamespace(grad=np.array([1.0, 2.0]), data={"v": clipped})
+    res = model.step(v, lin, np.zeros(1), np.zeros(2), np.zeros(0), True)
+    expected = np.array(exact_step, float) if kept else gn_step
+    np.testing.assert_array_equal(res.d, expected + clipped - v)
+    assert res.ok is (ok or not kept)
+    gn = model.step(v, lin, np.zeros(1), np.zeros(2), np.zeros(0), False)
+    np.testing.assert_array_equal(gn.d, gn_step + clipped - v)
 
 
 def test_bounds_as_dict_lists_each_finite_bound_under_its_log_column():
