@@ -698,6 +698,55 @@ def test_the_sparse_models_exact_hessian_blocks_are_the_nlps_lagrangian_hessian(
     assert np.abs(Hs - 2.0 * np.einsum("kri,krj->kij", lin.data["J"], lin.data["J"])).max() > 1e-3
 
 
+def test_the_sparse_models_row_products_are_the_nlps_jacobian_times_a_step():
+    """``MultipleShootingModel._a_times(lin, d)``, assembled block by block (the dynamics'
+    gaps, each stage's rows, the terminal rows), is ``J d`` with ``J`` CasADi's Jacobian
+    of the NLP's rows at the linearisation point; with the clearance rows (curved)."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    pb.add_constraint(Clearance(0.1))
+    strat = Weighted(pb, "sqp", {"codegen": False, "qpsol": "hpipm", "seed": "none"})
+    tr, model = strat.transcription, strat.solvers[0].backend.model
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    U = np.tile([0.1, -0.05, 0.02, 0.1, 0.2, -0.1, 0.1], (pb.horizon, 1))
+    w = tr.pack(*rest(pb, U), np.zeros(7))
+    model.start(w, p, tr.lbg, tr.ubg, None, None, True)
+    lin = model.linearize(w, p)
+    J = np.asarray(ca.Function("J", [tr.w, tr.p], [ca.jacobian(tr.g, tr.w)])(w, p))
+    d = np.random.default_rng(11).normal(size=w.size)
+    np.testing.assert_allclose(model._a_times(lin, d), J @ d, atol=1e-9, rtol=1e-9)
+    res = model._qp(lin, *model._hessian_blocks(lin, np.zeros(J.shape[0]), p, False))
+    assert res.ok and res.status == ""  # HPIPM's answer, checked with these products
+
+
+@pytest.mark.parametrize("where", ["row upper", "row lower", "bound upper", "bound lower"])
+@pytest.mark.parametrize(("excess", "ok"), [(0.95, True), (1.05, False)])
+def test_the_sparse_models_qp_answer_is_checked_to_its_tolerance(where, excess, ok):
+    """``MultipleShootingModel._solved``: HPIPM's answer is accepted only if it keeps the
+    linearised rows and the bounds to ``QP_FEASIBILITY (1 + |d|)``; here a step of 0.25
+    crosses one of them by ``excess`` times that (1.25e-6). A step that is not finite is
+    refused as such."""
+    model = object.__new__(MultipleShootingModel)
+    A = np.array([[1.0, 0.0], [0.0, 1.0]])
+    model._a_times = lambda lin, d: A @ d
+    far = np.full(2, 9.0)
+    lin = SimpleNamespace(c=np.zeros(2), lbc=-far, ubc=far.copy(),
+                          data={"v": np.zeros(2), "lbw": -far, "ubw": far.copy()})  # fmt: skip
+    sign = 1.0 if where.endswith("upper") else -1.0
+    if where.startswith("row"):
+        (lin.ubc if sign > 0 else lin.lbc)[0] = 0.25 * sign
+    else:
+        (lin.data["ubw"] if sign > 0 else lin.data["lbw"])[1] = 0.25 * sign
+    step = np.zeros(2)
+    step[0 if where.startswith("row") else 1] = sign * (0.25 + excess * 1e-6 * 1.25)
+    assert model._solved(lin, step) == (
+        (True, "") if ok else (False, "infeasible or not converged")
+    )
+    assert model._solved(lin, np.array([np.nan, 0.0])) == (False, "not finite")
+
+
 @pytest.mark.parametrize(
     ("exact_step", "ok", "kept"),
     [
