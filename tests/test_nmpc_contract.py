@@ -672,10 +672,11 @@ def test_the_sparse_models_exact_hessian_blocks_are_the_nlps_lagrangian_hessian(
     """``MultipleShootingModel._hessian_blocks(exact=True)``: each stage's block (its
     state and command) and the terminal one are the blocks of the NLP's Lagrangian
     Hessian ``f + lam' g`` (CasADi's derivatives; the model rows are linear, the problem
-    couples no two stages), plus the regularisation; with the clearance rows (curved) and
-    random multipliers on every row."""
+    couples no two stages), plus the regularisation; with the clearance rows (curved), the
+    command-rate rows (in every stage but the terminal one) and random multipliers on
+    every row."""
     x8 = load_robot("x8-3dof")
-    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8).with_accel(np.full(7, 2.0)))
     pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
     pb.add_task(ControlRate(), weight=0.1, level=None)
     pb.add_constraint(Clearance(0.1))
@@ -717,6 +718,12 @@ def test_the_sparse_models_row_products_are_the_nlps_jacobian_times_a_step():
     J = np.asarray(ca.Function("J", [tr.w, tr.p], [ca.jacobian(tr.g, tr.w)])(w, p))
     d = np.random.default_rng(11).normal(size=w.size)
     np.testing.assert_allclose(model._a_times(lin, d), J @ d, atol=1e-9, rtol=1e-9)
+    lam = np.random.default_rng(12).normal(size=J.shape[0])
+    np.testing.assert_allclose(model._at_lam(lin, lam), J.T @ lam, atol=1e-9, rtol=1e-9)
+    lbw, ubw = tr.variable_bounds(p)  # the iterate returned is clipped to them
+    far = w + 50.0 * np.sign(np.random.default_rng(13).normal(size=w.size))
+    assert np.isfinite(lbw).any() and np.isfinite(ubw).any()
+    np.testing.assert_array_equal(model.result(far, p, lam, d)[0], np.clip(far, lbw, ubw))
     res = model._qp(lin, *model._hessian_blocks(lin, np.zeros(J.shape[0]), p, False))
     assert res.ok and res.status == ""  # HPIPM's answer, checked with these products
 
@@ -745,6 +752,37 @@ def test_the_sparse_models_qp_answer_is_checked_to_its_tolerance(where, excess, 
         (True, "") if ok else (False, "infeasible or not converged")
     )
     assert model._solved(lin, np.array([np.nan, 0.0])) == (False, "not finite")
+
+
+def test_the_sparse_kkt_error_is_the_largest_part_and_ignores_pinned_variables():
+    """Row complementarity, free variables' bound complementarity and stationarity, each
+    made the largest in turn; a pinned variable (``lbw = ubw``, e.g. the measured state)
+    carries any multiplier: neither its stationarity nor its complementarity counts."""
+    model = object.__new__(MultipleShootingModel)
+    model._at_lam = lambda lin, lam: np.array([lam[0], 0.0])  # one row: on variable 0
+
+    def kkt(c, lam_c, v0, lam_v0, grad0):
+        # variable 1 is pinned at 0 with a stationarity residual of 5: never counted
+        lin = SimpleNamespace(grad=np.array([grad0, 5.0]), c=np.array([c]),
+                              lbc=np.array([0.0]), ubc=np.array([1.0]),
+                              data={"v": np.array([v0, 0.0]), "lbw": np.array([-1.0, 0.0]),
+                                    "ubw": np.array([1.0, 0.0])})  # fmt: skip
+        lam_v = np.array([lam_v0, 0.0])
+        return model.kkt_error(lin.data["v"], lin, np.array([lam_c]), lam_v)
+
+    assert kkt(0.5, 2.0, 0.0, 0.0, -2.0) == pytest.approx(1.0)  # row: 2 x 0.5 from its top
+    assert kkt(1.0, 0.0, 0.25, -3.0, 3.0) == pytest.approx(3.75)  # bound: 3 x 1.25
+    assert kkt(1.0, 0.0, 0.0, 0.0, 0.125) == pytest.approx(0.125)  # stationarity
+
+
+def test_hpipm_refuses_the_hierarchy_mode_that_couples_every_stage():
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0, level=0)
+    pb.add_task(CogAlignment(), weight=1.0, level=1)
+    msg = r"^solver_options\.qpsol: hpipm needs stage-wise rows; hierarchy mode 'total' "
+    with pytest.raises(ConfigError, match=msg + r"couples every stage \(use qpsol = 'daqp'"):
+        Hierarchical(pb, mode="total", backend="sqp", options={"codegen": False, "qpsol": "hpipm"})
 
 
 @pytest.mark.parametrize(

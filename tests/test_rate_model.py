@@ -381,3 +381,50 @@ def test_a_failed_step_names_each_state_outside_its_bounds_and_only_those():
     cmd = ctrl.step(x0, 0.0)
     assert cmd.status == "stopped"
     assert cmd.message.endswith(" (state z = 0.7 outside [0.8, 1.5]; q3 = 2.3 outside [-2.2, 2.2])")
+
+
+def brute_force_recovery(model, z0, steps, max_change, box, limits, grid=200001):
+    """``RateModel.recovery`` by search: at each step, per DoF, the commands on a fine grid
+    within the rate bounds and ``max_change`` of the last one, each next state from
+    ``model.predict``; of those that land in the box the one nearest zero, else the one
+    that lands nearest the box."""
+    nx, (lo, hi), (u_lo, u_hi) = model.nx, box, limits
+    z, out = np.array(z0, float), np.empty((steps, nx))
+    for k in range(steps):
+        free = model.predict(z, np.zeros(nx), model.dt)[:nx]
+        gain = model.predict(z, np.ones(nx), model.dt)[:nx] - free
+        last, u = z[nx : 2 * nx], np.empty(nx)
+        for i in range(nx):
+            lo_u, hi_u = (
+                max(last[i] - max_change[i], u_lo[i]),
+                min(last[i] + max_change[i], u_hi[i]),
+            )
+            cand = np.linspace(lo_u, hi_u, grid)
+            x = free[i] + gain[i] * cand
+            inside = (x >= lo[i]) & (x <= hi[i])
+            if inside.any():
+                u[i] = cand[inside][np.argmin(np.abs(cand[inside]))]
+            else:
+                u[i] = cand[np.argmin(np.maximum(lo[i] - x, x - hi[i]))]
+        z = model.predict(z, u, model.dt)
+        out[k] = z[:nx]
+    return out
+
+
+@pytest.mark.parametrize(
+    ("x", "r"),
+    [
+        ([0.0, 0.1, -0.2], [0.0, 0.0, 0.0]),  # inside, at rest: no command
+        ([-0.45, 0.4, 0.3], [-0.6, 0.5, 0.7]),  # heading out: braked at the bound
+        ([-0.7, -0.65, -0.8], [-0.3, -0.2, -0.4]),  # below, falling: pushed back up
+        ([0.9, 0.6, 0.7], [0.9, 0.8, 0.3]),  # above, rising fast: too far to return at once
+    ],
+)
+def test_the_recovery_plan_is_the_nearest_to_zero_command_that_keeps_the_box(x, r):
+    model = RateModel(3, 0.1, np.array([0.2, 0.0, 0.3]))
+    z0 = model.initial(np.array(x), np.array(r), np.array(r))
+    box, limits = (np.full(3, -0.5), np.full(3, 0.5)), (np.full(3, -1.0), np.full(3, 1.0))
+    cut = np.full(3, 0.15)
+    plan = model.recovery(z0, 12, cut, box, limits)
+    np.testing.assert_allclose(plan, brute_force_recovery(model, z0, 12, cut, box, limits),
+                               atol=1e-6)  # fmt: skip
