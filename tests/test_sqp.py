@@ -351,6 +351,26 @@ def test_the_dense_models_start_takes_clips_and_shifts_what_it_is_given(stagewis
     assert hier and model.qp.always[hier].all() and model.qp.always.sum() == len(hier)
 
 
+def test_the_dense_exact_hessian_is_the_lagrangians_by_finite_differences(stagewise_level):
+    """``hess(v, p, lam)``: the Hessian in the commands of ``f + lam' c`` (the cost and
+    the kept rows, the hierarchy's curved ones and the clearance among them), against
+    central differences of the gradient ``grad f + A' lam`` that ``linearize`` gives."""
+    model, v, p = stagewise_level
+    lam = np.random.default_rng(8).normal(size=model.nc)
+    H = np.asarray(model.hess(v, p, lam)[0]).reshape(model.nU, model.nU, order="F")
+
+    def grad_l(u):
+        lin = model.linearize(u, p)
+        return lin.grad + lin.data[1].T @ lam
+
+    h = 1e-6
+    fd = np.column_stack(
+        [(grad_l(v + h * e) - grad_l(v - h * e)) / (2 * h) for e in np.eye(model.nU)]
+    )
+    assert np.abs(H).max() > 1.0
+    np.testing.assert_allclose(H, fd, rtol=0, atol=1e-6 * np.abs(H).max())
+
+
 def test_the_exact_hessian_is_made_convex_on_the_bounds_with_multipliers(
     stagewise_level, monkeypatch
 ):
@@ -411,3 +431,20 @@ def test_the_qp_solvers_own_options_reach_it():
     opts = {**FAST, "qpsol": "daqp", "qpsol_options": own}
     model = Weighted(make_problem(horizon=3), "sqp", opts).solvers[0].backend.model
     assert model.qp.opts["daqp"] == own["daqp"]
+
+
+def test_the_dense_models_state_rows_are_the_bounded_states_after_the_first():
+    """States become rows of the commands where they have a bound on either side,
+    stages 1 to N (stage 0 is the measured state); here ``x``, ``y``, yaw unbounded, ``z``
+    bounded below only. Gauss-Newton only: no exact Hessian is built."""
+    pb = make_problem(horizon=3, box={"z": (0.8, np.inf)})
+    opts = {**FAST, "qpsol": "daqp", "hessian": "gauss-newton"}
+    model = Weighted(pb, "sqp", opts).solvers[0].backend.model
+    tr, s, nx = model.tr, model.tr.stride, model.tr.nx
+    names = pb.robot.state_names
+    bounded = [i for i, n in enumerate(names) if n not in ("x", "y", "yaw")]
+    assert names[2] == "z" and 2 in bounded and np.isinf(tr.ubw[s + 2])
+    expected = [k * s + i for k in range(1, pb.horizon + 1) for i in bounded]
+    np.testing.assert_array_equal(model.state_idx, expected)
+    assert model.state_idx.dtype.kind == "i" and nx == len(names)
+    assert model.hess is None
