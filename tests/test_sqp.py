@@ -448,3 +448,78 @@ def test_the_dense_models_state_rows_are_the_bounded_states_after_the_first():
     np.testing.assert_array_equal(model.state_idx, expected)
     assert model.state_idx.dtype.kind == "i" and nx == len(names)
     assert model.hess is None
+
+
+# -- Hierarchical.solve's bookkeeping: totals, per-level reports, partial and failed ends ----
+def recorded_levels(monkeypatch, fail_level=None):
+    """Each level's solve recorded (a real one); ``fail_level``'s replaced by a failure
+    that still took 7 iterations and 0.25 s."""
+    from aeromanip.nmpc import strategies
+    from aeromanip.nmpc.backends.base import NlpResult
+
+    real, results = strategies._solve_level, []
+
+    def level(st, p, w0, ubg=None, lbg=None):
+        i = len(results)
+        if i == fail_level:
+            n = st.tr.w.numel()
+            res = NlpResult(np.full(n, 3.0), None, None, np.nan, False, "Stalled", 7, 0.25)
+        else:
+            res = real(st, p, w0, ubg, lbg)
+        results.append(res)
+        return res
+
+    monkeypatch.setattr(strategies, "_solve_level", level)
+    return results
+
+
+@pytest.fixture(scope="module")
+def two_levels():
+    """Alignment first, tracking second: the lower level's cost depends on ``p``."""
+    h = Hierarchical(make_problem(levels=(1, 0), horizon=4), mode="strict", backend="ipopt")
+    tr = h.transcription
+    p = tr.parameters(X0, np.zeros(7), h.problem.stage_params(0.0))
+    return h, p, tr.pack(np.repeat(X0[None], 5, 0), np.zeros((4, 7)), np.zeros(7))
+
+
+def test_a_hierarchys_result_adds_up_its_levels_and_reports_each(monkeypatch, two_levels):
+    h, p, w0 = two_levels
+    results = recorded_levels(monkeypatch)
+    out = h.solve(p, [w0, None])
+    assert [r.success for r in results] == [True, True] and out.success and out.status == "ok"
+    assert out.iterations == sum(r.iterations for r in results) > results[1].iterations
+    assert out.solve_time_s == pytest.approx(sum(r.solve_time_s for r in results), rel=1e-12)
+    assert out.transcription is h.transcription and len(out.level_w) == 2
+    np.testing.assert_array_equal(out.w, results[1].w)
+    for rep, res in zip(out.levels, results, strict=True):
+        assert (rep.success, rep.status, rep.iterations) == (True, res.status, res.iterations)
+        assert rep.solve_time_s == res.solve_time_s
+    C0, C1 = (h.transcription.costs(r.w, p) for r in results)
+    assert out.levels[0].gain == 0.0
+    assert out.levels[1].cost == pytest.approx(C1[h.rows[1]].sum(), rel=1e-12)
+    gain = C0[h.rows[1]].sum() - C1[h.rows[1]].sum()  # tracking at level 0's answer - own
+    assert gain > 0 and out.levels[1].gain == pytest.approx(gain, rel=1e-9)
+
+
+def test_a_failed_lower_level_keeps_the_higher_ones_answer_as_partial(monkeypatch, two_levels):
+    h, p, w0 = two_levels
+    results = recorded_levels(monkeypatch, fail_level=1)
+    out = h.solve(p, [w0, None])
+    assert out.success and out.status == "partial: Stalled" and len(out.level_w) == 1
+    np.testing.assert_array_equal(out.w, results[0].w)
+    assert out.iterations == results[0].iterations + 7
+    assert out.solve_time_s == pytest.approx(results[0].solve_time_s + 0.25, rel=1e-12)
+    failed = out.levels[1]
+    assert (failed.success, failed.status, failed.iterations) == (False, "Stalled", 7)
+    assert failed.solve_time_s == 0.25 and np.isnan(failed.cost) and np.isnan(failed.gain)
+
+
+def test_a_failed_first_level_is_a_failed_step_with_no_answer(monkeypatch, two_levels):
+    h, p, w0 = two_levels
+    recorded_levels(monkeypatch, fail_level=0)
+    out = h.solve(p, [w0, None])
+    assert out.success is False and out.status == "Stalled"
+    assert out.transcription is h.transcription
+    assert out.w.shape == (h.transcription.w.numel(),) and np.isnan(out.w).all()
+    assert (out.iterations, out.solve_time_s) == (7, 0.25)
+    assert len(out.levels) == 1 and not out.levels[0].success
