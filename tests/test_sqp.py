@@ -1,5 +1,7 @@
 """The ``sqp`` backend against independent truth (IPOPT on the same NLP), RTI, codegen."""
 
+import re
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -523,3 +525,40 @@ def test_a_failed_first_level_is_a_failed_step_with_no_answer(monkeypatch, two_l
     assert out.w.shape == (h.transcription.w.numel(),) and np.isnan(out.w).all()
     assert (out.iterations, out.solve_time_s) == (7, 0.25)
     assert len(out.levels) == 1 and not out.levels[0].success
+
+
+def test_strict_bounds_pin_each_higher_row_that_a_decision_moves_and_free_the_rest(two_levels):
+    """``mode = "strict"``: level 1's copy of level 0's rows is pinned (``lbg = ubg``) to
+    their values at level 0's answer, except rows no decision variable moves (e.g.
+    stage 0's, set by the measured state alone), which are left out (``-inf, inf``)."""
+    h, p, w0 = two_levels
+    w = h.solve(p, [w0, None]).level_w[0]
+    st = h.solvers[1]
+    rows = np.asarray(st.tr.hier_rows[0])
+    lbg, ubg = h._bounds(1, p, [np.zeros(1)], [w])
+    R = np.asarray(ca.Function("g", [st.tr.w, st.tr.p], [st.tr.g])(w, p)).ravel()[rows]
+    moved = st.tr.g_movable[rows]
+    assert moved.any() and not moved.all()
+    np.testing.assert_array_equal(lbg[rows][moved], R[moved])
+    np.testing.assert_array_equal(ubg[rows][moved], R[moved])
+    assert np.all(np.isneginf(lbg[rows][~moved])) and np.all(np.isposinf(ubg[rows][~moved]))
+
+
+@pytest.mark.parametrize(("key", "top"), [("rel_tol", 1.0), ("abs_tol", 1e6)])
+def test_a_hierarchys_tolerances_are_checked_on_their_closed_range(key, top):
+    pb = make_problem(horizon=2)
+    for fine in (0.0, top):
+        Hierarchical(pb, **{key: fine})
+    for bad in (-1e-9, 2.0 * top):
+        msg = f"hierarchy.{key}: must be in [0, {top:g}], got {bad}"
+        with pytest.raises(ConfigError, match=f"^{re.escape(msg)}$"):
+            Hierarchical(pb, **{key: bad})
+
+
+def test_a_hierarchy_needs_a_task_with_a_level():
+    pb = Problem(X8, 2, 0.5, Bounds.from_robot(X8))
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    with pytest.raises(
+        ConfigError, match=r"^tasks: a hierarchy needs at least one task with a level$"
+    ):
+        Hierarchical(pb)

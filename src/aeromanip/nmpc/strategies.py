@@ -254,9 +254,9 @@ class Hierarchical:
     ) -> np.ndarray:
         """Level ``i``'s initial guess: its own (shifted) one for an SQP, which needs no
         feasible start, else the higher level's solution (feasible: interior points like it)."""
+        if w_best is None:  # the first level (a failed one ends the solve)
+            return guesses[0]
         mine = guesses[i] if i < len(guesses) else None
-        if w_best is None:
-            return mine if mine is not None else guesses[0]
         return mine if (mine is not None and self.own_guess) else w_best
 
     def solve(self, p: np.ndarray, guesses: list[np.ndarray | None]) -> StrategyResult:
