@@ -133,3 +133,32 @@ def test_the_scenario_key_reaches_the_plan_and_bad_values_name_it():
     assert load_scenarios("flight", [])[""].problem.bounds.margin_ramp == 0.0
     with pytest.raises(ConfigError, match=r"bounds\.margin_ramp"):
         load_scenarios("flight", ["bounds.margin_ramp=-1"])
+
+
+def test_tightening_shrinks_each_named_state_and_refuses_what_it_cannot():
+    """``Bounds.tightened``: each named state's box shrunk by its margin on both sides (a
+    margin of half the width pins it), no ramp unless given; an unknown state, or a margin
+    that crosses the bounds, is one line naming it."""
+    b = Bounds.from_robot(load_robot("x8-3dof"), platform_box={"x": (-0.6, 0.6)})
+    t = b.tightened({"x": 0.1, "q2": 1.6})  # q2 in [-1.6, 1.6]: pinned at 0
+    i, j = b.names.index("x"), b.names.index("q2")
+    assert (t.x_lower[i], t.x_upper[i]) == pytest.approx((-0.5, 0.5))
+    assert t.x_lower[j] == pytest.approx(0.0) and t.x_upper[j] == pytest.approx(0.0)
+    others = [k for k in range(len(b.names)) if k not in (i, j)]
+    np.testing.assert_array_equal(t.x_lower[others], b.x_lower[others])
+    assert t.margin_ramp == 0.0 and t.margin[i] == 0.1 and t.margin[j] == 1.6
+    np.testing.assert_array_equal(t.return_bounds(t.x_upper + 1.0, 0.0)[1], t.x_upper)
+    with pytest.raises(ConfigError, match=r"^bounds margin: unknown state 'z2'$"):
+        b.tightened({"z2": 0.1})
+    with pytest.raises(ConfigError, match=r"^bounds margin: 0\.7 closes the bounds of x$"):
+        b.tightened({"x": 0.7})
+
+
+def test_the_violation_is_how_far_a_state_lies_outside_its_box():
+    b = Bounds.from_robot(load_robot("x8-3dof"), platform_box={"z": (0.8, 1.5)})
+    x = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.6, -1.2])
+    assert b.violation(x) == 0.0
+    k = b.names.index("z")
+    for z, out in ((0.75, 0.05), (1.6, 0.1)):
+        x[k] = z
+        assert b.violation(x) == pytest.approx(out)
