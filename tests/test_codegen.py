@@ -195,3 +195,19 @@ def test_codegen_switched_off_returns_the_function_itself(fake_cc):
     f = ca.Function("aeromanip_off_cc", [x], [ca.sumsqr(x)])
     assert compiled(f, enabled=False) is f
     assert not fake_cc.exists()  # no compiler was started
+
+
+@pytest.mark.parametrize("qpsol", ["daqp", "hpipm"])
+@pytest.mark.parametrize("enabled", [False, True])
+def test_the_codegen_option_decides_whether_a_models_functions_are_compiled(
+    fake_cc, monkeypatch, qpsol, enabled
+):
+    """``solver_options.codegen`` reaches the build of either QP model's Functions (the
+    dense one's and the sparse one's), with ``AEROMANIP_CODEGEN`` allowing it: the
+    compiler (a stand-in that records its start and fails) runs only when asked."""
+    from aeromanip.nmpc.strategies import Weighted
+
+    monkeypatch.setenv("AEROMANIP_CODEGEN", "1")
+    opts = {"codegen": enabled, "qpsol": qpsol, "seed": "none"}
+    Weighted(make_problem(levels=(0, 0), horizon=2), "sqp", opts)
+    assert fake_cc.exists() is enabled

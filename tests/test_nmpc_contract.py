@@ -775,6 +775,73 @@ def test_the_sparse_kkt_error_is_the_largest_part_and_ignores_pinned_variables()
     assert kkt(1.0, 0.0, 0.0, 0.0, 0.125) == pytest.approx(0.125)  # stationarity
 
 
+@pytest.mark.parametrize("opts", [{"hessian": "gauss-newton"}, {"rti": True}])
+def test_the_sparse_model_builds_no_exact_hessian_it_will_not_use(opts):
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 2, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    base = {"codegen": False, "qpsol": "hpipm", "seed": "none"}
+    model = Weighted(pb, "sqp", {**base, **opts}).solvers[0].backend.model
+    assert model.f_hess is None and model.t_hess is None
+    assert Weighted(pb, "sqp", base).solvers[0].backend.model.f_hess is not None
+
+
+def test_hpipm_solves_a_stagewise_hierarchy_as_ipopt_does():
+    """``mode = "stagewise"`` (each stage's higher cost a row of its own) on the sparse
+    model: each level's optimal cost as IPOPT's on the same NLPs. (Without the cost rows'
+    Gauss-Newton curvature in its Hessian the lower level ran to the iteration limit.)"""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 4, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0, level=0)
+    pb.add_task(CogAlignment(), weight=1.0, level=1)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    opts = {"codegen": False, "qpsol": "hpipm", "seed": "none", "tol": 1e-9}
+    hp = Hierarchical(pb, mode="stagewise", backend="sqp", options=opts)
+    tr = hp.transcription
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    w0 = tr.pack(*rest(pb), np.zeros(7))
+    assert type(hp.solvers[1].backend.model).__name__ == "MultipleShootingModel"
+    got = hp.solve(p, [w0, None])
+    ref = Hierarchical(pb, mode="stagewise", backend="ipopt").solve(p, [w0, None])
+    assert got.success and ref.success and got.status == ref.status == "ok"
+    for mine, theirs in zip(got.levels, ref.levels, strict=True):
+        assert mine.cost == pytest.approx(theirs.cost, rel=1e-4, abs=1e-9)
+    assert got.levels[1].iterations <= 15
+
+
+def test_the_sparse_gauss_newton_blocks_carry_the_stagewise_cost_rows_curvature():
+    """Gauss-Newton blocks: ``2 J'J`` plus, per higher-level cost row ``|r_j|^2`` of the
+    stage, ``2 max(lam_j, 0) J_j' J_j`` with ``J_j`` CasADi's Jacobian of the
+    transcription's residuals ``r_j`` in that stage's variables (random multipliers)."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0, level=0)
+    pb.add_task(CogAlignment(), weight=1.0, level=1)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    opts = {"codegen": False, "qpsol": "hpipm", "seed": "none"}
+    st = Hierarchical(pb, mode="stagewise", backend="sqp", options=opts).solvers[1]
+    tr, model = st.tr, st.backend.model
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    U = np.tile([0.1, -0.05, 0.02, 0.1, 0.2, -0.1, 0.1], (pb.horizon, 1))
+    w = tr.pack(*rest(pb, U), np.zeros(7))
+    model.start(w, p, tr.lbg, tr.ubg, None, None, True)
+    lin = model.linearize(w, p)
+    lam = np.random.default_rng(6).normal(size=tr.g.numel())
+    Hs, HT = model._hessian_blocks(lin, lam, p, False)
+    s, N, reg = tr.stride, tr.N, model.opts["regularization"]
+    full = np.zeros((w.size, w.size))
+    for row, r in tr.hier_residuals:
+        J = np.asarray(ca.Function("J", [tr.w, tr.p], [ca.jacobian(r, tr.w)])(w, p))
+        full += 2.0 * max(lam[row], 0.0) * J.T @ J
+    assert len(tr.hier_residuals) == N + 1 and np.abs(full).max() > 1e-3
+    for k in range(N):
+        gn = 2.0 * lin.data["J"][k].T @ lin.data["J"][k] + reg * np.eye(s)
+        block = full[k * s : (k + 1) * s, k * s : (k + 1) * s]
+        np.testing.assert_allclose(Hs[k], gn + block, atol=1e-9, rtol=1e-9)
+    gnT = 2.0 * lin.data["JT"].T @ lin.data["JT"] + reg * np.eye(tr.nz)
+    np.testing.assert_allclose(HT, gnT + full[N * s :, N * s :], atol=1e-9, rtol=1e-9)
+
+
 def test_hpipm_refuses_the_hierarchy_mode_that_couples_every_stage():
     x8 = load_robot("x8-3dof")
     pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))

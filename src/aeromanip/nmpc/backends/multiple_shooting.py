@@ -63,6 +63,16 @@ def check_hpipm_options(options: dict[str, Any]) -> None:
         ) from None
 
 
+def _rows_gauss_newton(cost_rows: list[tuple[int, ca.SX]], s: ca.SX, lam: ca.SX) -> ca.SX:
+    """The Gauss-Newton curvature ``sum_j max(lam_j, 0) 2 J_j' J_j`` of cost rows
+    ``|r_j|^2`` (``J_j = dr_j/ds``; a row bounded above has ``lam_j >= 0``)."""
+    H = ca.SX.zeros(s.numel(), s.numel())
+    for i, r in cost_rows:
+        J = ca.jacobian(r, s)
+        H += 2.0 * ca.fmax(lam[i], 0.0) * (J.T @ J)
+    return ca.densify(H)
+
+
 class MultipleShootingModel:
     """The multiple-shooting QP model of a transcription (module docstring).
 
@@ -108,13 +118,14 @@ class MultipleShootingModel:
             res = (sm.residuals if name == "stage" else sm.terminal_residuals)(*args)
             r = ca.densify(res[0] if isinstance(res, tuple | list) else res)
             accel = sm.accel(z, u) if name == "stage" and sm.accel is not None else ca.SX(0, 1)
-            rows = ca.vertcat(self._stage_expr(cost(*args), res), accel)
-            parts[name] = (args, s, r, ca.densify(rows))
+            stage_cost = cost(*args)
+            rows = ca.vertcat(self._stage_expr(stage_cost, res), accel)
+            parts[name] = (args, s, r, ca.densify(rows), self._cost_rows(stage_cost, res))
         n_lam = max(parts["stage"][3].numel(), parts["terminal"][3].numel(), 1)
         lam = ca.SX.sym("lam", n_lam)
         with_exact = self.opts["hessian"] != "gauss-newton" and not self.opts["rti"]
         fs: dict[str, ca.Function] = {}
-        for name, (args, s, r, c) in parts.items():
+        for name, (args, s, r, c, cost_rows) in parts.items():
             Jr, Jc = (ca.densify(ca.jacobian(e, s)) for e in (r, c))
             fs[name] = ca.Function(f"aeromanip_ms_{name}", args, [r, Jr, c, Jc])
             fs[f"{name}_merit"] = ca.Function(f"aeromanip_ms_{name}_merit", args, [ca.sumsqr(r), c])
@@ -122,6 +133,9 @@ class MultipleShootingModel:
                 L = ca.sumsqr(r) + (ca.dot(lam[: c.numel()], c) if c.numel() else 0)
                 H = ca.densify(ca.hessian(L, s)[0])
                 fs[f"{name}_hess"] = ca.Function(f"aeromanip_ms_{name}_hess", [*args, lam], [H])
+            if cost_rows:
+                gn = _rows_gauss_newton(cost_rows, s, lam)
+                fs[f"{name}_rows_gn"] = ca.Function(f"aeromanip_ms_{name}_rgn", [*args, lam], [gn])
         names = list(fs)
         funcs = [
             f.map(f"{f.name()}_map{self.N}", "serial", self.N, [], [])
@@ -136,12 +150,24 @@ class MultipleShootingModel:
         self.t_stage, self.t_merit = Buffered(built["terminal"]), Buffered(built["terminal_merit"])
         self.f_hess = Buffered(built["stage_hess"]) if with_exact else None
         self.t_hess = Buffered(built["terminal_hess"]) if with_exact else None
+        self.f_rows_gn, self.t_rows_gn = (
+            Buffered(built[n]) if n in built else None
+            for n in ("stage_rows_gn", "terminal_rows_gn")
+        )
         self.n_lam = n_lam
         self.nr, self.nrT = fs["stage"].size1_out(0), fs["terminal"].size1_out(0)
         self.nc, self.ncT = fs["stage"].size1_out(2), fs["terminal"].size1_out(2)
         middle = [len(r) for r in self.stage_rows[1 : self.N]]
         if any(n != self.nc for n in middle) or self.ncT != len(self.stage_rows[self.N]):
             raise ConfigError("solver_options.qpsol: hpipm: the stage rows do not match")
+
+    def _cost_rows(self, cost: Any, res: Any) -> list[tuple[int, ca.SX]]:
+        """``stagewise``: each higher level's cost row ``|r_j|^2`` as (its index among the
+        stage's rows, ``r_j``); other modes: none (their rows are the residuals)."""
+        if self.tr.mode != "stagewise" or not isinstance(res, tuple | list):
+            return []
+        n_path = cost[2].numel()
+        return [(n_path + j, r) for j, r in enumerate(res[1:])]
 
     def _stage_expr(self, cost: Any, res: Any) -> ca.SX:
         """A stage's path and hierarchy rows as the transcription orders them: path,
@@ -344,6 +370,13 @@ class MultipleShootingModel:
         else:
             Hs = 2.0 * np.einsum("kri,krj->kij", d["J"], d["J"])
             HT = 2.0 * d["JT"].T @ d["JT"]
+            if self.f_rows_gn is not None:  # the hierarchy's cost rows, as CondensedModel
+                Z, U, P, zN, pN = self._split(d["v"], p)
+                lam = self._stage_lams(lam_c)
+                Hs += self.f_rows_gn(Z, U, P, lam[:, :N].ravel(order="F"))[0].reshape(N, ns, ns)
+            if self.t_rows_gn is not None:
+                _, _, _, zN, pN = self._split(d["v"], p)
+                HT += self.t_rows_gn(zN, pN, self._stage_lams(lam_c)[:, N])[0].reshape(nz, nz)
         reg = self.opts["regularization"]
         Hs[:, np.arange(ns), np.arange(ns)] += reg
         HT[np.arange(nz), np.arange(nz)] += reg
