@@ -37,6 +37,8 @@ from aeromanip.nmpc.backends.sqp import (
     OPTION_CHECKS,
     SqpBackend,
     _go_exact,
+    _number,
+    _one_of,
 )
 from aeromanip.nmpc.constraints import Bounds, Clearance, UserConstraint
 from aeromanip.nmpc.controller import Controller
@@ -925,3 +927,59 @@ def test_a_solve_cut_by_casadi_catching_ctrl_c_raises_it_again_only_where_python
     assert raised == []
     handlers[signal.SIGINT] = lambda *a: None
     nlpsol._reraise_interrupt()  # another handler: nothing raised
+
+
+def test_the_option_checkers_name_what_a_value_must_be():
+    """``_number`` and ``_one_of`` (``OPTION_CHECKS`` is made of them at import)."""
+    positive, nonneg = _number(True), _number(False)
+    for v in (1, 0.5, 1e-12):
+        assert positive(v) == nonneg(v) == ""
+    assert nonneg(0) == nonneg(0.0) == ""
+    for v in (0, 0.0, -1.0):
+        assert positive(v) == "a finite number > 0"
+    for v in (-1e-12, -3):
+        assert nonneg(v) == "a finite number >= 0"
+    for v in (True, float("inf"), float("nan"), "1", None):
+        assert positive(v) == "a finite number > 0" and nonneg(v) == "a finite number >= 0"
+    pick = _one_of(("a", 2))
+    assert pick("a") == pick(2) == "" and pick("b") == "one of ['a', 2]"
+
+
+def stopping(rti=False):
+    """An ``SqpBackend`` with only what ``_verdict`` reads: its options and a model whose
+    KKT error is set by hand."""
+    sqp = object.__new__(SqpBackend)
+    sqp.opts = {**DEFAULTS, "rti": rti, "tol": 1e-8, "acceptable_tol": 1e-5,
+                "constr_viol_tol": 1e-4, "acceptable_iter": 3}  # fmt: skip
+    sqp.model = SimpleNamespace(kkt=0.0)
+    sqp.model.kkt_error = lambda v, lin, lam_c, lam_v: sqp.model.kkt
+    return sqp
+
+
+def verdict(sqp, kkt, viol, it, warm=False, acceptable=0, max_iter=50):
+    sqp.model.kkt = kkt
+    lin = SimpleNamespace(c=np.array([viol]), lbc=np.array([-1.0]), ubc=np.array([0.0]))
+    return sqp._verdict(None, lin, None, None, it, warm, acceptable, max_iter)
+
+
+def test_the_sqp_stops_at_the_tolerances_and_counts_acceptable_iterations():
+    """``_verdict``: solved at ``kkt <= tol`` and ``violation <= tol`` (edges included),
+    the KKT error measured only from the first QP on (or a warm start) and where the rows
+    hold to ``constr_viol_tol``; ``acceptable_iter`` iterations in a row at
+    ``acceptable_tol`` (or one at the iteration limit) end it at the acceptable level."""
+    sqp = stopping()
+    assert verdict(sqp, 1e-8, 1e-8, 1) == ("Solve_Succeeded", 0)
+    assert verdict(sqp, 1e-8, 0.0, 0) == ("", 0)  # a cold start's first iterate
+    assert verdict(sqp, 1e-8, 0.0, 0, warm=True) == ("Solve_Succeeded", 0)
+    assert verdict(sqp, 2e-8, 0.0, 1) == ("", 1)  # acceptable, once
+    assert verdict(sqp, 1e-5, 0.0, 1, acceptable=1) == ("", 2)  # the edge counts
+    assert verdict(sqp, 1e-5, 0.0, 1, acceptable=2) == ("Solved_To_Acceptable_Level", 3)
+    assert verdict(sqp, 2e-5, 0.0, 1, acceptable=2) == ("", 0)  # the run is broken
+    assert verdict(sqp, 1e-8, 1e-4, 1) == ("", 1)  # rows hold to constr_viol_tol only
+    assert verdict(sqp, 1e-8, 2e-4, 1, acceptable=2) == ("", 0)  # not measured
+    assert verdict(sqp, 1e-3, 0.0, 50) == ("Maximum_Iterations_Exceeded", 0)
+    assert verdict(sqp, 1e-3, 0.0, 49) == ("", 0)
+    assert verdict(sqp, 1e-6, 0.0, 50) == ("Solved_To_Acceptable_Level", 1)
+    rti = stopping(rti=True)  # one QP: no stopping test but the iteration limit
+    assert verdict(rti, 0.0, 5.0, 1, max_iter=1) == ("Maximum_Iterations_Exceeded", 0)
+    assert verdict(rti, 0.0, 5.0, 0, max_iter=1) == ("", 0)
