@@ -37,6 +37,7 @@ from aeromanip.nmpc.backends.sqp import (
     OPTION_CHECKS,
     SqpBackend,
     _go_exact,
+    _line_search,
     _number,
     _one_of,
 )
@@ -983,3 +984,69 @@ def test_the_sqp_stops_at_the_tolerances_and_counts_acceptable_iterations():
     rti = stopping(rti=True)  # one QP: no stopping test but the iteration limit
     assert verdict(rti, 0.0, 5.0, 1, max_iter=1) == ("Maximum_Iterations_Exceeded", 0)
     assert verdict(rti, 0.0, 5.0, 0, max_iter=1) == ("", 0)
+
+
+class MeritLine:
+    """A stand-in QP model along one direction ``d`` from ``v = 0``: ``merit`` at the
+    trial ``alpha d`` is ``table[alpha]`` (cost, violation); an optional second-order
+    correction returns ``soc``."""
+
+    def __init__(self, table, soc=None):
+        self.table, self.soc, self.tried = table, soc, []
+        if soc is not None:
+            self.correction = lambda v, d, lin, p: soc
+
+    def merit(self, w, p):
+        alpha = round(float(w[0]) / 2.0, 12)  # d = [2.0]
+        self.tried.append(alpha)
+        if alpha not in self.table:
+            return 1e9, 0.0
+        return self.table[alpha]
+
+
+def search(model, viol0=0.0, mu=10.0, grad=-3.0):
+    """``_line_search`` from cost 5 and row violation ``viol0`` along ``d = [2]``: the
+    merit is ``phi0 = 5 + mu viol0``, its slope ``2 grad - mu viol0``."""
+    lin = SimpleNamespace(f=5.0, grad=np.array([grad]), c=np.array([viol0]),
+                          lbc=np.array([-1.0]), ubc=np.array([0.0]))  # fmt: skip
+    return _line_search(model, np.zeros(1), np.array([2.0]), None, lin, mu)
+
+
+def test_the_line_search_takes_the_first_step_with_sufficient_decrease_of_the_merit():
+    """Armijo on the l1 merit ``f + mu viol``: a trial ``alpha`` is taken when its merit
+    is at most ``phi0 + 1e-4 alpha min(slope, 0)``, the slope being ``grad'd - mu viol0``;
+    halving from 1 down to below 1e-3. Each case sits on one side of that line."""
+    slope = 2 * -3.0 - 10.0 * 0.5
+    phi0 = 5.0 + 10.0 * 0.5
+    edge = phi0 + 1e-4 * 1.0 * slope  # the full step's threshold, exactly
+    assert search(MeritLine({1.0: (edge, 0.0)}), viol0=0.5) == (1.0, None)
+    # just short of it (by less than the slope's share would move it): rejected
+    short = MeritLine({1.0: (edge + 1e-9, 0.0), 0.5: (phi0 - 1.0, 0.0)})
+    assert search(short, viol0=0.5) == (0.5, None) and short.tried == [1.0, 0.5]
+    # the violation at the trial counts with mu: 0.1 x 10 more than the cost's decrease
+    assert search(MeritLine({1.0: (phi0 - 0.5, 0.1), 0.5: (1.0, 0.0)}), viol0=0.5)[0] == 0.5
+    # at 0.5 the threshold is phi0 + 1e-4 x 0.5 x slope
+    half = phi0 + 1e-4 * 0.5 * slope
+    assert search(MeritLine({1.0: (phi0, 0.0), 0.5: (half, 0.0)}), viol0=0.5)[0] == 0.5
+    assert search(MeritLine({1.0: (phi0, 0.0), 0.5: (half + 1e-9, 0.0),
+                             0.25: (0.0, 0.0)}), viol0=0.5)[0] == 0.25  # fmt: skip
+    # an ascent direction (slope > 0): no increase allowed at all
+    assert search(MeritLine({1.0: (5.0 + 1e-6, 0.0), 0.5: (4.0, 0.0)}), grad=1.0)[0] == 0.5
+    # nothing accepted: halved until below 1e-3, the shortest step taken as it is
+    none = MeritLine({})
+    assert search(none)[0] == 0.5**10 and none.tried == [0.5**k for k in range(11)]
+
+
+def test_the_line_search_takes_a_corrected_full_step_only_if_the_correction_solved():
+    """The full step rejected, a model's second-order correction is tried as a full step
+    (and returned with it); a correction whose QP failed is not used."""
+    good = QpResult(np.array([1.9]), np.zeros(1), np.zeros(1), True, "")
+    table = {1.0: (50.0, 0.0), 0.95: (1.0, 0.0), 0.5: (2.0, 0.0)}  # 1.9 = 0.95 d
+    assert search(MeritLine(table, soc=good)) == (1.0, good)
+    failed = QpResult(np.array([1.9]), np.zeros(1), np.zeros(1), False, "x")
+    assert search(MeritLine(table, soc=failed)) == (0.5, None)
+    # judged as a full step: threshold 5 + 1e-4 x 1 x (-6)
+    near = {1.0: (50.0, 0.0), 0.95: (5.0 - 8e-4, 0.0), 0.5: (2.0, 0.0)}
+    assert search(MeritLine(near, soc=good)) == (1.0, good)
+    above = {1.0: (50.0, 0.0), 0.95: (5.0 - 6e-4 + 1e-9, 0.0), 0.5: (2.0, 0.0)}
+    assert search(MeritLine(above, soc=good)) == (0.5, None)
