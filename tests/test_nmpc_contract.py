@@ -36,6 +36,7 @@ from aeromanip.nmpc.backends.sqp import (
     HESSIANS,
     OPTION_CHECKS,
     SqpBackend,
+    _damping,
     _go_exact,
     _line_search,
     _number,
@@ -1050,3 +1051,14 @@ def test_the_line_search_takes_a_corrected_full_step_only_if_the_correction_solv
     assert search(MeritLine(near, soc=good)) == (1.0, good)
     above = {1.0: (50.0, 0.0), 0.95: (5.0 - 6e-4 + 1e-9, 0.0), 0.5: (2.0, 0.0)}
     assert search(MeritLine(above, soc=good)) == (0.5, None)
+
+
+def test_the_damping_grows_tenfold_after_a_short_step_and_fades_after_full_ones():
+    """Levenberg-Marquardt damping: from 0 to 1e-3 at the first shortened step, x10 at
+    each next one; /10 after a full step, back to 0 once below 1e-3."""
+    assert _damping(0.0, 1.0) == 0.0
+    assert _damping(0.0, 0.5) == 1e-3
+    assert _damping(1e-3, 0.25) == pytest.approx(1e-2)
+    assert _damping(1e-2, 1.0) == pytest.approx(1e-3)  # exactly the floor: kept
+    assert _damping(1e-3 * 10.0, 1.0) >= 1e-3
+    assert _damping(5e-3, 1.0) == 0.0  # 5e-4 < 1e-3
