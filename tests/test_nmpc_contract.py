@@ -1062,3 +1062,37 @@ def test_the_damping_grows_tenfold_after_a_short_step_and_fades_after_full_ones(
     assert _damping(1e-2, 1.0) == pytest.approx(1e-3)  # exactly the floor: kept
     assert _damping(1e-3 * 10.0, 1.0) >= 1e-3
     assert _damping(5e-3, 1.0) == 0.0  # 5e-4 < 1e-3
+
+
+def test_sqp_options_are_checked_as_given_and_blas_threads_set_only_when_asked(monkeypatch):
+    with pytest.raises(ConfigError, match=r"^solver_options: must be a table, got 'x'$"):
+        SqpBackend.checked_options("x")
+    with pytest.raises(ConfigError, match=r"^solver_options\.tol: "):
+        SqpBackend.check_options({"tol": -1.0})
+    from aeromanip.nmpc.backends import sqp as sqp_module
+
+    calls = []
+    monkeypatch.setattr(sqp_module, "limit_blas_threads", calls.append)
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 2, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    for threads in (None, 2):
+        Weighted(pb, "sqp", {"codegen": False, "seed": "none", "blas_threads": threads})
+    assert calls == [2]
+
+
+def test_a_warm_sqp_solve_moves_its_multipliers_a_stage_on_by_default():
+    """``solve(..., lam_g0, lam_x0)`` with the last step's multipliers: the QP model
+    starts with them shifted a stage on (``shift`` defaults to True), as the NLP moved."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    backend = Weighted(pb, "sqp", {"codegen": False, "seed": "none"}).solvers[0].backend
+    tr, shifts = backend.tr, []
+    start = backend.model.start
+    backend.model.start = lambda *a: shifts.append(a[-1]) or start(*a)
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    w0 = tr.pack(*rest(pb), np.zeros(7))
+    first = backend.solve(w0, p, tr.lbg, tr.ubg)
+    backend.solve(first.w, p, tr.lbg, tr.ubg, first.lam_g, first.lam_x)
+    assert shifts == [True, True]
