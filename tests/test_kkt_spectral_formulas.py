@@ -119,3 +119,13 @@ def test_condition_number_default_delta_is_tiny():
     S = ca.SX.sym("A", 2, 2)
     rho = float(ca.Function("r", [S], [condition_number(S)])(np.diag([4.0, 1.0])))
     assert rho == pytest.approx(np.linalg.cond(np.diag([4.0, 1.0])), rel=1e-8)
+
+
+def test_no_rows_no_violation_no_complementarity():
+    """A problem without rows: both measures are 0 (not the max of an empty array)."""
+    empty = np.zeros(0)
+    assert violation(empty, empty, empty) == 0.0
+    assert complementarity(empty, empty, empty, empty) == 0.0
+    one = np.array([2.0])
+    assert violation(one, np.array([0.0]), np.array([1.5])) == 0.5
+    assert complementarity(one, np.array([0.0]), np.array([3.0]), np.array([0.5])) == 0.5
