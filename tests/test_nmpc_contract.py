@@ -16,6 +16,7 @@ import logging
 import math
 import signal
 import threading
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -1096,3 +1097,26 @@ def test_a_warm_sqp_solve_moves_its_multipliers_a_stage_on_by_default():
     first = backend.solve(w0, p, tr.lbg, tr.ubg)
     backend.solve(first.w, p, tr.lbg, tr.ubg, first.lam_g, first.lam_x)
     assert shifts == [True, True]
+
+
+@pytest.mark.parametrize("rti", [False, True])
+def test_an_sqp_solve_reports_its_qps_and_its_time(rti):
+    """``iterations`` is the number of QPs solved (one in RTI, whose status says so) and
+    ``solve_time_s`` lies within the wall time of the call."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    opts = {"codegen": False, "seed": "none", "rti": rti}
+    backend = Weighted(pb, "sqp", opts).solvers[0].backend
+    tr, qps = backend.tr, []
+    step = backend.model.step
+    backend.model.step = lambda *a: qps.append(1) or step(*a)
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    t0 = time.perf_counter()
+    res = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
+    wall = time.perf_counter() - t0
+    assert res.iterations == len(qps)
+    assert len(qps) == 1 if rti else len(qps) >= 3
+    assert 0.0 < res.solve_time_s <= wall
+    assert res.status == ("RTI step" if rti else "Solve_Succeeded")
