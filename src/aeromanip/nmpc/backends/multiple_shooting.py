@@ -370,17 +370,25 @@ class MultipleShootingModel:
         else:
             Hs = 2.0 * np.einsum("kri,krj->kij", d["J"], d["J"])
             HT = 2.0 * d["JT"].T @ d["JT"]
-            if self.f_rows_gn is not None:  # the hierarchy's cost rows, as CondensedModel
-                Z, U, P, zN, pN = self._split(d["v"], p)
-                lam = self._stage_lams(lam_c)
-                Hs += self.f_rows_gn(Z, U, P, lam[:, :N].ravel(order="F"))[0].reshape(N, ns, ns)
-            if self.t_rows_gn is not None:
-                _, _, _, zN, pN = self._split(d["v"], p)
-                HT += self.t_rows_gn(zN, pN, self._stage_lams(lam_c)[:, N])[0].reshape(nz, nz)
+            if self.f_rows_gn is not None or self.t_rows_gn is not None:
+                self._add_cost_rows(Hs, HT, d["v"], lam_c, p)
         reg = self.opts["regularization"]
         Hs[:, np.arange(ns), np.arange(ns)] += reg
         HT[np.arange(nz), np.arange(nz)] += reg
         return Hs, HT
+
+    def _add_cost_rows(
+        self, Hs: np.ndarray, HT: np.ndarray, v: np.ndarray, lam_c: np.ndarray, p: np.ndarray
+    ) -> None:
+        """Add to the Gauss-Newton blocks (in place) the curvature of the stagewise
+        hierarchy's cost rows, as ``CondensedModel._hessian`` does."""
+        N, ns, nz = self.N, self.ns, self.nz
+        Z, U, P, zN, pN = self._split(v, p)
+        lam = self._stage_lams(lam_c)
+        if self.f_rows_gn is not None:
+            Hs += self.f_rows_gn(Z, U, P, lam[:, :N].ravel(order="F"))[0].reshape(N, ns, ns)
+        if self.t_rows_gn is not None:
+            HT += self.t_rows_gn(zN, pN, lam[:, N])[0].reshape(nz, nz)
 
     def _stage_lams(self, lam_c: np.ndarray) -> np.ndarray:
         """The stage rows' multipliers as the stage Functions' ``lam`` input (per column)."""
