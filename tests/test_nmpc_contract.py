@@ -673,15 +673,12 @@ def test_the_second_order_correction_solves_the_last_qp_with_rows_taken_at_the_f
     assert plain > 1e-4 and model.merit(v + soc.d, p)[1] < 0.2 * plain
 
 
-def test_the_sparse_models_exact_hessian_blocks_are_the_nlps_lagrangian_hessian():
-    """``MultipleShootingModel._hessian_blocks(exact=True)``: each stage's block (its
-    state and command) and the terminal one are the blocks of the NLP's Lagrangian
-    Hessian ``f + lam' g`` (CasADi's derivatives; the model rows are linear, the problem
-    couples no two stages), plus the regularisation; with the clearance rows (curved), the
-    command-rate rows (in every stage but the terminal one) and random multipliers on
-    every row."""
+def sparse_clearance_point(accel: bool):
+    """The sparse model of a 3-step tracking problem with the clearance rows (and, if
+    ``accel``, command-rate rows), linearised at a moving plan: ``tr, model, p, w, lin``."""
     x8 = load_robot("x8-3dof")
-    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8).with_accel(np.full(7, 2.0)))
+    bounds = Bounds.from_robot(x8)
+    pb = Problem(x8, 3, 0.5, bounds.with_accel(np.full(7, 2.0)) if accel else bounds)
     pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
     pb.add_task(ControlRate(), weight=0.1, level=None)
     pb.add_constraint(Clearance(0.1))
@@ -692,6 +689,17 @@ def test_the_sparse_models_exact_hessian_blocks_are_the_nlps_lagrangian_hessian(
     w = tr.pack(*rest(pb, U), np.zeros(7))
     model.start(w, p, tr.lbg, tr.ubg, None, None, True)
     lin = model.linearize(w, p)
+    return tr, model, p, w, lin
+
+
+def test_the_sparse_models_exact_hessian_blocks_are_the_nlps_lagrangian_hessian():
+    """``MultipleShootingModel._hessian_blocks(exact=True)``: each stage's block (its
+    state and command) and the terminal one are the blocks of the NLP's Lagrangian
+    Hessian ``f + lam' g`` (CasADi's derivatives; the model rows are linear, the problem
+    couples no two stages), plus the regularisation; with the clearance rows (curved), the
+    command-rate rows (in every stage but the terminal one) and random multipliers on
+    every row."""
+    tr, model, p, w, lin = sparse_clearance_point(accel=True)
     lam = np.random.default_rng(5).normal(size=tr.g.numel())
     Hs, HT = model._hessian_blocks(lin, lam, p, True)
     L = tr.f + ca.dot(ca.DM(lam), tr.g)
@@ -708,18 +716,7 @@ def test_the_sparse_models_row_products_are_the_nlps_jacobian_times_a_step():
     """``MultipleShootingModel._a_times(lin, d)``, assembled block by block (the dynamics'
     gaps, each stage's rows, the terminal rows), is ``J d`` with ``J`` CasADi's Jacobian
     of the NLP's rows at the linearisation point; with the clearance rows (curved)."""
-    x8 = load_robot("x8-3dof")
-    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
-    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
-    pb.add_task(ControlRate(), weight=0.1, level=None)
-    pb.add_constraint(Clearance(0.1))
-    strat = Weighted(pb, "sqp", {"codegen": False, "qpsol": "hpipm", "seed": "none"})
-    tr, model = strat.transcription, strat.solvers[0].backend.model
-    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
-    U = np.tile([0.1, -0.05, 0.02, 0.1, 0.2, -0.1, 0.1], (pb.horizon, 1))
-    w = tr.pack(*rest(pb, U), np.zeros(7))
-    model.start(w, p, tr.lbg, tr.ubg, None, None, True)
-    lin = model.linearize(w, p)
+    tr, model, p, w, lin = sparse_clearance_point(accel=False)
     J = np.asarray(ca.Function("J", [tr.w, tr.p], [ca.jacobian(tr.g, tr.w)])(w, p))
     d = np.random.default_rng(11).normal(size=w.size)
     np.testing.assert_allclose(model._a_times(lin, d), J @ d, atol=1e-9, rtol=1e-9)
