@@ -45,13 +45,28 @@ def test_compiled_sqp_matches_in_process(tmp_path, monkeypatch):
     np.testing.assert_allclose(a.plan_u, b.plan_u, atol=1e-9)
 
 
-@pytest.mark.parametrize("cc", ["false", "no-such-compiler-xyz"])
-def test_without_a_working_compiler_functions_run_in_process(tmp_path, monkeypatch, cc):
+@pytest.mark.parametrize(
+    ("cc", "warning"),
+    [
+        ("false", "codegen: compiling aeromanip_test_cc failed (?); evaluating in-process"),
+        ("no-such-compiler-xyz",
+         "codegen: no C compiler found; evaluating CasADi Functions in-process"),
+    ],
+)  # fmt: skip
+def test_without_a_working_compiler_functions_run_in_process(
+    tmp_path, monkeypatch, caplog, cc, warning
+):
+    """A compiler that fails silently, or none at all: the Function runs in-process, with
+    one warning saying so, and nothing is left in the cache."""
+    monkeypatch.setenv("AEROMANIP_CODEGEN", "1")
     monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
     monkeypatch.setenv("CC", cc)
+    monkeypatch.setattr(codegen, "_warned", set())
     x = ca.SX.sym("x", 2)
     f = ca.Function("aeromanip_test_cc", [x], [ca.sumsqr(x)])
-    assert compiled(f) is f
+    with caplog.at_level("WARNING"):
+        assert compiled(f) is f
+    assert [r.getMessage() for r in caplog.records] == [warning]
     left = [p.name for p in tmp_path.iterdir() if p.suffix != ".lock"]
     assert not left  # no library, no leftover build directory (a lock file may stay)
 
@@ -72,6 +87,39 @@ def test_a_large_build_is_announced_before_it_starts(caplog):
         assert announce_large_build([small, large])
     (record,) = caplog.records
     assert "aeromanip_large" in record.getMessage() and "hpipm" in record.getMessage()
+
+
+class _Sized:
+    """A stand-in Function of a given instruction count (all the announcement reads)."""
+
+    def __init__(self, name, size):
+        self._name, self._size = name, size
+
+    def name(self):
+        return self._name
+
+    def n_instructions(self):
+        return self._size
+
+
+def test_the_announcement_gives_the_counts_in_millions_and_the_cache(caplog, monkeypatch):
+    """Up to ``LARGE_BUILD`` instructions in all nothing is said; above, one warning with
+    the count of Functions, the total and the largest in millions (two significant
+    digits) and the cache directory."""
+    from aeromanip.nmpc.backends.codegen import LARGE_BUILD, announce_large_build
+
+    monkeypatch.setenv("AEROMANIP_CACHE", "/cache/here")
+    edge = [_Sized("a", LARGE_BUILD - 1000), _Sized("b", 1000)]
+    over = [_Sized("aeromanip_big", 135_000), _Sized("aeromanip_small", LARGE_BUILD - 110_000)]
+    with caplog.at_level("WARNING"):
+        assert not announce_large_build(edge) and not caplog.records
+        assert announce_large_build(over)
+    (record,) = caplog.records
+    assert record.getMessage() == (  # 225000 and 135000 instructions
+        "codegen: compiling 2 functions of 0.23 M instructions (largest aeromanip_big, "
+        "0.14 M): this may take minutes and GiBs of memory, once (then cached in "
+        "/cache/here); at long horizons solver_options.qpsol = 'hpipm' keeps the code small"
+    )
 
 
 FAKE_CC = """\
@@ -197,6 +245,18 @@ def test_codegen_switched_off_returns_the_function_itself(fake_cc):
     assert not fake_cc.exists()  # no compiler was started
 
 
+def test_several_functions_are_compiled_unless_switched_off(fake_cc, monkeypatch):
+    """``compiled_all`` builds by default (here the stand-in compiler starts and fails,
+    so the Functions come back as they were)."""
+    monkeypatch.setenv("AEROMANIP_CODEGEN", "1")
+    x = ca.SX.sym("x", 2)
+    fs = [ca.Function(f"aeromanip_all_{i}", [x], [ca.sumsqr(x) + i]) for i in range(2)]
+    for enabled in (False, True):
+        got = codegen.compiled_all(fs, enabled=False) if not enabled else codegen.compiled_all(fs)
+        assert len(got) == 2 and got[0] is fs[0] and got[1] is fs[1]
+        assert fake_cc.exists() is enabled
+
+
 @pytest.mark.parametrize("qpsol", ["daqp", "hpipm"])
 @pytest.mark.parametrize("enabled", [False, True])
 def test_the_codegen_option_decides_whether_a_models_functions_are_compiled(
@@ -211,3 +271,20 @@ def test_the_codegen_option_decides_whether_a_models_functions_are_compiled(
     opts = {"codegen": enabled, "qpsol": qpsol, "seed": "none"}
     Weighted(make_problem(levels=(0, 0), horizon=2), "sqp", opts)
     assert fake_cc.exists() is enabled
+
+
+def test_a_buffered_function_evaluates_in_place_and_refuses_a_wrong_argument_count():
+    """``Buffered``: the Function's value in its preallocated output (by hand here),
+    overwritten by the next call; a call with fewer or more arguments than the Function
+    has inputs is an error, not an evaluation on the last call's leftovers."""
+    x, y = ca.SX.sym("x", 2), ca.SX.sym("y")
+    f = ca.Function("aeromanip_buffered", [x, y], [x * y, ca.sumsqr(x)])
+    buf = codegen.Buffered(f)
+    out = buf(np.array([1.0, 2.0]), np.array([3.0]))
+    np.testing.assert_array_equal(out[0], [3.0, 6.0])
+    assert out[1][0] == 5.0
+    again = buf(np.array([0.5, 0.0]), np.array([2.0]))
+    assert again[0] is out[0] and out[0].tolist() == [1.0, 0.0]
+    for args in ((np.array([1.0, 1.0]),), (np.array([1.0, 1.0]), np.ones(1), np.ones(1))):
+        with pytest.raises(ValueError):
+            buf(*args)

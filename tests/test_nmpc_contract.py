@@ -250,6 +250,36 @@ def test_limit_blas_threads_sets_numpys_openblas():
         codegen.limit_blas_threads(before)
 
 
+def test_limit_blas_threads_defaults_to_one_and_touches_only_openblas(monkeypatch):
+    """One thread by default; only mapped files named like OpenBLAS are opened (a library
+    that links OpenBLAS, e.g. NumPy's core, is not counted); one that will not load is
+    skipped and the next one still set."""
+    path, get = _numpy_openblas()
+    before = get()
+    try:
+        codegen.limit_blas_threads(2)
+        done = codegen.limit_blas_threads()
+        assert get() == 1 and path in done
+        assert all("openblas" in Path(p).name.lower() for p in done)
+        maps = [f"7f00-7f01 r-xp 0 08:01 1 {p}\n" for p in ("/nowhere/libopenblas_a.so", path)]
+        monkeypatch.setattr(codegen, "open", lambda *a, **k: _Lines(maps), raising=False)
+        codegen.limit_blas_threads(2)
+        assert get() == 2
+    finally:
+        monkeypatch.undo()
+        codegen.limit_blas_threads(before)
+
+
+class _Lines(list):
+    """A stand-in for an open text file: its lines, as a context manager."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
 # --- the hessian option reaches every QP of a solve ----------------------------------------------
 
 
@@ -432,6 +462,60 @@ def test_the_merit_pins_stage_zero_to_the_measured_state(sparse_model):
         assert model.merit(moved, p) == (f0, viol0)
 
 
+def test_the_linearisation_pins_stage_zero_to_the_measured_state_from_either_side(sparse_model):
+    """A guess whose stage-0 state is above or below the measured one is linearised at the
+    measured state (the variable bounds of stage 0 are the state itself)."""
+    pb, tr, model, p = sparse_model
+    v = tr.pack(*rest(pb), np.zeros(7))
+    at = model.linearize(v, p)
+    for side in (+1.0, -1.0):
+        moved = v.copy()
+        moved[tr.index_x[0]] += side * 0.1
+        lin = model.linearize(moved, p)
+        np.testing.assert_array_equal(lin.data["v"], v)
+        assert lin.f == at.f and np.array_equal(lin.grad, at.grad)
+
+
+def test_the_sparse_model_takes_the_multipliers_only_when_both_come(sparse_model):
+    """``start``: the rows' and the variables' multipliers are the given ones (moved a stage
+    on with ``shift``) only when both are given; one alone starts both at zero."""
+    pb, tr, model, p = sparse_model
+    w = tr.pack(*rest(pb), np.zeros(7))
+    rng = np.random.default_rng(3)
+    lam_g, lam_x = rng.normal(size=tr.g.numel()), rng.normal(size=w.size)
+    for given in ((lam_g, None), (None, lam_x)):
+        _, lam_c, lam_v = model.start(w, p, tr.lbg, tr.ubg, *given, True)
+        assert not lam_c.any() and not lam_v.any()
+        assert lam_c.shape == (tr.g.numel(),) and lam_v.shape == w.shape
+    _, lam_c, lam_v = model.start(w, p, tr.lbg, tr.ubg, lam_g, lam_x, False)
+    assert np.array_equal(lam_c, lam_g) and np.array_equal(lam_v, lam_x)
+    _, lam_c, lam_v = model.start(w, p, tr.lbg, tr.ubg, lam_g, lam_x, True)
+    assert np.array_equal(lam_c, lam_g[tr.shift_g]) and np.array_equal(lam_v, lam_x[tr.shift_w])
+
+
+def test_hpipm_options_are_tried_on_hpipm_and_auto_checks_both_solvers():
+    """``qpsol = "hpipm"``: its own options pass, an unknown one is one line naming it;
+    ``"auto"`` may use either QP solver (dense up to ``condense_max_horizon``, sparse
+    beyond), so its options must suit both, whatever that horizon."""
+    SqpBackend.check_options({"qpsol": "hpipm", "qpsol_options": {"hpipm": {"iter_max": 30}}})
+    with pytest.raises(ConfigError, match=r"^solver_options\.qpsol_options: hpipm rejects "
+                       r"them: Unknown option: no_such$"):  # fmt: skip
+        SqpBackend.check_options({"qpsol": "hpipm", "qpsol_options": {"no_such": 1}})
+    for horizon, own, other in ((1, "hpipm", "daqp"), (100, "daqp", "hpipm")):
+        opts = {"qpsol": "auto", "condense_max_horizon": horizon,
+                "qpsol_options": {own: {}}}  # fmt: skip
+        with pytest.raises(ConfigError, match=rf"^solver_options\.qpsol_options: {other} "
+                           rf"rejects them: Unknown option: {own}$"):  # fmt: skip
+            SqpBackend.check_options(opts)
+
+
+def test_an_unknown_sqp_option_is_named_with_every_known_one():
+    with pytest.raises(ConfigError) as err:
+        SqpBackend.check_options({"tolerance": 1e-6})
+    known = ", ".join(DEFAULTS)
+    assert str(err.value) == f"solver_options.tolerance: unknown sqp option (known: {known})"
+
+
 # --- the SQP's answer is a KKT point of the NLP (its own multipliers, CasADi's derivatives) ------
 
 
@@ -599,6 +683,31 @@ def test_path_rows_at_each_stage_carry_their_own_constraints_bounds():
     rows = np.flatnonzero((kind == "terminal") & (stage == 3))
     np.testing.assert_array_equal((lbg[rows], ubg[rows]), ([0.5], [3.0]))
     np.testing.assert_allclose(g[rows], [X[3, 2]], atol=1e-15)
+
+
+def test_clearance_keeps_the_named_points_in_their_order_and_refuses_a_non_finite_d_min():
+    """``Clearance(points=...)``: one row per named point, in the order given, each the
+    depth the default constraint gives that point (its points: joint2, joint3, ee), all
+    bounded below by ``d_min``."""
+    from aeromanip.robot.kinematics import Kinematics
+    from aeromanip.tasks.base import Stage
+
+    kin = Kinematics(load_robot("x8-3dof"))
+    stage = Stage(kin, ca.DM(X0), ca.DM.zeros(7), ca.DM.zeros(7), ca.DM.zeros(0), 0.1)
+
+    def rows(c):
+        r = c.expression(stage)
+        return np.asarray(ca.evalf(r.expr)).ravel(), r.lower, r.upper
+
+    every, _, _ = rows(Clearance(0.1))
+    named, lower, upper = rows(Clearance(0.05, points=("ee", "joint2")))
+    assert every.size == 3 and np.ptp(every) > 0.01
+    np.testing.assert_array_equal(named, every[[2, 0]])
+    np.testing.assert_array_equal(lower, [0.05, 0.05])
+    assert np.isinf(upper).all()
+    for bad in (float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match=rf"^clearance\.d_min: must be finite, got {bad}$"):
+            Clearance(bad)
 
 
 def test_a_user_constraint_whose_bounds_cross_is_refused_by_its_name_and_entry():
@@ -814,14 +923,17 @@ def test_hpipm_solves_a_stagewise_hierarchy_as_ipopt_does():
 def test_the_sparse_gauss_newton_blocks_carry_the_stagewise_cost_rows_curvature():
     """Gauss-Newton blocks: ``2 J'J`` plus, per higher-level cost row ``|r_j|^2`` of the
     stage, ``2 max(lam_j, 0) J_j' J_j`` with ``J_j`` CasADi's Jacobian of the
-    transcription's residuals ``r_j`` in that stage's variables (random multipliers)."""
+    transcription's residuals ``r_j`` in that stage's variables (random multipliers); the
+    third level of three, so two cost rows a stage, after the clearance rows."""
     x8 = load_robot("x8-3dof")
     pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
     pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0, level=0)
     pb.add_task(CogAlignment(), weight=1.0, level=1)
+    pb.add_task(Posture(["q2"], [0.3]), weight=1.0, level=2)
     pb.add_task(ControlRate(), weight=0.1, level=None)
+    pb.add_constraint(Clearance(0.1))  # path rows before the cost rows in each stage
     opts = {"codegen": False, "qpsol": "hpipm", "seed": "none"}
-    st = Hierarchical(pb, mode="stagewise", backend="sqp", options=opts).solvers[1]
+    st = Hierarchical(pb, mode="stagewise", backend="sqp", options=opts).solvers[2]
     tr, model = st.tr, st.backend.model
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
     U = np.tile([0.1, -0.05, 0.02, 0.1, 0.2, -0.1, 0.1], (pb.horizon, 1))
@@ -835,7 +947,7 @@ def test_the_sparse_gauss_newton_blocks_carry_the_stagewise_cost_rows_curvature(
     for row, r in tr.hier_residuals:
         J = np.asarray(ca.Function("J", [tr.w, tr.p], [ca.jacobian(r, tr.w)])(w, p))
         full += 2.0 * max(lam[row], 0.0) * J.T @ J
-    assert len(tr.hier_residuals) == N + 1 and np.abs(full).max() > 1e-3
+    assert len(tr.hier_residuals) == 2 * (N + 1) and np.abs(full).max() > 1e-3
     for k in range(N):
         gn = 2.0 * lin.data["J"][k].T @ lin.data["J"][k] + reg * np.eye(s)
         block = full[k * s : (k + 1) * s, k * s : (k + 1) * s]

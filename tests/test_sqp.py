@@ -527,6 +527,33 @@ def test_a_failed_first_level_is_a_failed_step_with_no_answer(monkeypatch, two_l
     assert len(out.levels) == 1 and not out.levels[0].success
 
 
+@pytest.mark.parametrize("fails", [False, True])
+def test_a_weighted_step_reports_its_one_solve(monkeypatch, fails):
+    """``Weighted.solve``: one level report (level 0) whose cost and objective are the
+    NLP's objective at the answer (CasADi's ``f`` of the transcription), gain and loss 0,
+    the solve's status, iterations and time, and the answer as the only level answer; a
+    failed solve (7 iterations, 0.25 s) reports its own status and NaN cost and loss."""
+    w = Weighted(make_problem(levels=(0, 0), horizon=3), "ipopt")
+    tr = w.transcription
+    p = tr.parameters(X0, np.zeros(7), w.problem.stage_params(0.0))
+    w0 = tr.pack(np.repeat(X0[None], 4, 0), np.zeros((3, 7)), np.zeros(7))
+    results = recorded_levels(monkeypatch, fail_level=0 if fails else None)
+    out = w.solve(p, [w0])
+    (res,), (rep,) = results, out.levels
+    assert out.transcription is tr and (out.success, rep.success) == (not fails, not fails)
+    assert (out.iterations, out.solve_time_s) == (rep.iterations, rep.solve_time_s)
+    assert (rep.iterations, rep.solve_time_s) == (res.iterations, res.solve_time_s)
+    assert rep.level == 0 and rep.status == res.status and rep.gain == 0.0
+    assert len(out.level_w) == 1 and out.level_w[0] is res.w and out.w is res.w
+    if fails:
+        assert out.status == "Stalled" and (res.iterations, res.solve_time_s) == (7, 0.25)
+        assert np.isnan(rep.cost) and np.isnan(rep.objective) and np.isnan(rep.loss)
+        return
+    f = float(ca.Function("f", [tr.w, tr.p], [tr.f])(res.w, p))
+    assert out.status == "ok" and rep.loss == 0.0 and res.iterations > 0
+    assert rep.cost == pytest.approx(f, rel=1e-9) and rep.objective == rep.cost
+
+
 def test_strict_bounds_pin_each_higher_row_that_a_decision_moves_and_free_the_rest(two_levels):
     """``mode = "strict"``: level 1's copy of level 0's rows is pinned (``lbg = ubg``) to
     their values at level 0's answer, except rows no decision variable moves (e.g.
@@ -553,6 +580,32 @@ def test_a_hierarchys_tolerances_are_checked_on_their_closed_range(key, top):
         msg = f"hierarchy.{key}: must be in [0, {top:g}], got {bad}"
         with pytest.raises(ConfigError, match=f"^{re.escape(msg)}$"):
             Hierarchical(pb, **{key: bad})
+
+
+def test_a_problem_without_any_row_solves_as_ipopt_does():
+    """No constraint and every bound infinite: the dense SQP's QPs have no row at all (its
+    merit's penalty has no multiplier to scale); it reaches IPOPT's optimum."""
+    inf = np.full(7, np.inf)
+    pb = Problem(X8, 3, 0.5, Bounds(Bounds.from_robot(X8).names, -inf, inf, -inf, inf))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.1)
+    costs = []
+    for backend, opts in (("sqp", {"codegen": False, "seed": "none"}), ("ipopt", None)):
+        strat = Weighted(pb, backend, opts)
+        tr = strat.transcription
+        if backend == "sqp":
+            assert strat.solvers[0].backend.model.nc == 0
+        p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+        out = strat.solve(p, [tr.pack(np.repeat(X0[None], 4, 0), np.zeros((3, 7)), np.zeros(7))])
+        assert out.success
+        costs.append(out.levels[0].cost)
+    assert costs[0] == pytest.approx(costs[1], rel=1e-6, abs=1e-9)
+
+
+def test_a_problem_without_a_task_is_refused_by_the_weighted_strategy():
+    pb = Problem(X8, 2, 0.5, Bounds.from_robot(X8))
+    with pytest.raises(ConfigError, match=r"^tasks: the problem has no task$"):
+        Weighted(pb)
 
 
 def test_a_hierarchy_needs_a_task_with_a_level():

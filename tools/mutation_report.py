@@ -5,8 +5,9 @@ Usage, after ``AEROMANIP_CODEGEN=0 OPENBLAS_NUM_THREADS=1 mutmut run --max-child
     python tools/mutation_report.py            # the table (Markdown) on standard output
     python tools/mutation_report.py --survivors # every mutant not killed, by module
 
-A mutant counts as killed when a test failed (``killed``) or it ran past mutmut's time
-limit (``timeout``: an infinite loop is a detected bug); ``survived`` and ``no tests``
+A mutant counts as killed when a test failed (``killed``), it ran past mutmut's time
+limit (``timeout``: an infinite loop is a detected bug) or the test process crashed
+(``segfault``: the mutant broke a C library's contract); ``survived`` and ``no tests``
 count against the module; ``skipped`` and the type-checker's ``caught by type check``
 are not counted.
 
@@ -29,7 +30,7 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 LINE = re.compile(r"^\s*(?P<name>aeromanip\.\S+?__mutmut_\d+): (?P<status>.+)$")
-KILLED = {"killed", "timeout"}
+KILLED = {"killed", "timeout", "segfault"}  # a test failed, ran too long, or crashed
 NOT_COUNTED = {"skipped", "caught by type check", "not checked"}
 
 
