@@ -493,6 +493,42 @@ def test_the_sparse_model_takes_the_multipliers_only_when_both_come(sparse_model
     assert np.array_equal(lam_c, lam_g[tr.shift_g]) and np.array_equal(lam_v, lam_x[tr.shift_w])
 
 
+@pytest.mark.parametrize("rti", [False, True])
+def test_the_sparse_models_hpipm_has_its_limits_and_prints_nothing(
+    monkeypatch, capfd, small_problem, rti
+):
+    """The HPIPM solver a sparse model builds gets the limits of its kind (a converged
+    SQP's or an RTI's, ``HPIPM_LIMITS``), the user's HPIPM options added key by key (one
+    given keeps the others); a solve prints nothing (no timings)."""
+    from aeromanip.nmpc.backends.multiple_shooting import HPIPM_LIMITS
+
+    made, real = [], ca.conic
+
+    def conic(name, solver, sparsity, opts):
+        if name.startswith("aeromanip_hpipm_"):  # not the options' trial QP
+            made.append((solver, opts))
+        return real(name, solver, sparsity, opts)
+
+    monkeypatch.setattr(ca, "conic", conic)
+    opts = {"codegen": False, "qpsol": "hpipm", "seed": "none", "rti": rti,
+            "qpsol_options": {"hpipm": {"warm_start": True}}}  # fmt: skip
+    strat = Weighted(small_problem, "sqp", opts)
+    monkeypatch.undo()
+    (solver, given), = made
+    tol, iterations = HPIPM_LIMITS["rti" if rti else "sqp"]
+    assert solver == "hpipm" and given["print_time"] is False
+    hpipm = given["hpipm"]
+    assert hpipm["warm_start"] is True and hpipm["mode"] == "robust"
+    assert hpipm["iter_max"] == iterations
+    assert all(hpipm[f"res_{r}_max"] == tol for r in "gbdm")
+    tr = strat.transcription
+    p = tr.parameters(X0, np.zeros(7), small_problem.stage_params(0.0))
+    capfd.readouterr()
+    assert strat.solve(p, [tr.pack(*rest(small_problem), np.zeros(7))]).success
+    assert capfd.readouterr().out == ""
+    assert HPIPM_LIMITS["rti"] != HPIPM_LIMITS["sqp"]
+
+
 def test_hpipm_options_are_tried_on_hpipm_and_auto_checks_both_solvers():
     """``qpsol = "hpipm"``: its own options pass, an unknown one is one line naming it;
     ``"auto"`` may use either QP solver (dense up to ``condense_max_horizon``, sparse

@@ -14,6 +14,7 @@ its step does not descend, the step is taken with the Gauss-Newton Hessian inste
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import casadi as ca
@@ -36,11 +37,17 @@ from aeromanip.nmpc.transcription import COUPLING, Transcription
 HPIPM_LIMITS = {"sqp": (1e-10, 50), "rti": (1e-8, 25)}
 
 
-def hpipm_options(kind: str) -> dict[str, Any]:
-    """CasADi's ``hpipm`` options for a converged SQP (``"sqp"``) or an RTI (``"rti"``)."""
+def hpipm_options(kind: str, user: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """CasADi's ``conic`` options for HPIPM in a converged SQP (``"sqp"``) or an RTI
+    (``"rti"``), quiet, with the user's ``qpsol_options`` over them (inside ``"hpipm"``
+    key by key: one option given keeps the others' limits)."""
     tol, iterations = HPIPM_LIMITS[kind]
     residuals = ("res_g_max", "res_b_max", "res_d_max", "res_m_max")
-    return {"hpipm": {"mode": "robust", "iter_max": iterations, **dict.fromkeys(residuals, tol)}}
+    own = {"mode": "robust", "iter_max": iterations, **dict.fromkeys(residuals, tol)}
+    user = dict(user or {})
+    given = user.pop("hpipm", {})
+    inner = {**own, **given} if isinstance(given, Mapping) else given  # HPIPM names a bad one
+    return {"error_on_fail": False, "print_time": False, **user, "hpipm": inner}
 
 
 QP_FEASIBILITY = 1e-6  # a QP step keeps its rows and bounds to this (relative to 1 + |d|)
@@ -49,8 +56,7 @@ MAX_STEP = 1e3  # [m, rad, m/s, rad/s] a longer step comes from an indefinite, u
 
 def check_hpipm_options(options: dict[str, Any]) -> None:
     """HPIPM takes ``options`` (tried on a one-step OCP QP)."""
-    opts = {"error_on_fail": False, "print_time": False, **hpipm_options("sqp")}
-    opts.update(options)
+    opts = hpipm_options("sqp", options)
     H = ca.DM.eye(3)
     A = ca.DM([[-1.0, -1.0, 1.0]])  # x1 = x0 + u0
     try:
@@ -205,8 +211,7 @@ class MultipleShootingModel:
         self.a_perm = np.asarray(order.nonzeros(), dtype=int) - 1  # CCS position -> ours
         self.a_fixed = np.array(vals[: self.n_gap_entries])
         kind = "rti" if self.opts["rti"] else "sqp"
-        opts = {"error_on_fail": False, "print_time": False, **hpipm_options(kind)}
-        opts.update(self.opts["qpsol_options"])
+        opts = hpipm_options(kind, self.opts["qpsol_options"])
         with quiet_stdout():
             qp = ca.conic(f"aeromanip_hpipm_{N}", "hpipm", {"h": self.H_sp, "a": self.A_sp}, opts)
         # called through an MX Function of the nonzeros: CasADi's buffer interface would
@@ -221,7 +226,6 @@ class MultipleShootingModel:
             [out["x"], out["lam_a"], out["lam_x"], out["cost"]],
         )
         self.qp = Buffered(f)
-        self.qp_stats = qp
 
     # -- evaluation ----------------------------------------------------------------------
     def _split(self, v: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, ...]:
