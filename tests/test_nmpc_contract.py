@@ -565,13 +565,28 @@ def floored_problem():
     return pb
 
 
+def clearance_problem():
+    """The small problem with the end effector wanted 0.1 m under the base, its clearance
+    0.25 m and the platform held near 1 m: a path row binds (its multiplier enters the
+    model rows')."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8, platform_box={"z": (0.99, 1.01)}))
+    pb.add_task(EndEffectorTracking(Constant([0.0, 0.0, 0.9])), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    pb.add_constraint(Clearance(0.25, points=("ee",)))
+    return pb
+
+
 @pytest.mark.parametrize("qpsol", ["daqp", "hpipm"])
-@pytest.mark.parametrize("floored", [False, True], ids=["free", "state-bound-active"])
-def test_sqp_returns_multipliers_that_make_its_answer_stationary(small_problem, qpsol, floored):
+@pytest.mark.parametrize("case", ["free", "state-bound-active", "row-active"])
+def test_sqp_returns_multipliers_that_make_its_answer_stationary(small_problem, qpsol, case):
     """``grad f + J_g^T lam_g + lam_x = 0`` (CasADi's sign convention), with ``lam_x``
     nonzero only at an active variable bound: the NLP's multipliers, the model rows' too
-    (``daqp``: the condensed model, which recovers those the QP condensed away)."""
-    pb = floored_problem() if floored else small_problem
+    (``daqp``: the condensed model, which recovers those the QP condensed away), with a
+    state bound or a path row active."""
+    floored = case == "state-bound-active"
+    made = {"free": lambda: small_problem, "row-active": clearance_problem}
+    pb = floored_problem() if floored else made[case]()
     opts = {"codegen": False, "qpsol": qpsol, "tol": 1e-9}
     if "seed" in DEFAULTS:
         opts["seed"] = "none"
@@ -581,6 +596,9 @@ def test_sqp_returns_multipliers_that_make_its_answer_stationary(small_problem, 
     res = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
     if floored:  # a state bound binds: its multiplier is in play
         assert np.abs(res.lam_x[tr.index_x[1:].ravel()]).max() > 1e-6
+    if case == "row-active":  # a clearance row (bounded below only) binds
+        path = np.isfinite(tr.lbg) & np.isinf(tr.ubg)
+        assert path.sum() == pb.horizon and np.abs(res.lam_g[path]).max() > 1e-6
     assert res.success
     kkt = ca.Function("kkt", [tr.w, tr.p], [ca.gradient(tr.f, tr.w), ca.jacobian(tr.g, tr.w)])
     grad, J = (np.asarray(a) for a in kkt(res.w, p))
