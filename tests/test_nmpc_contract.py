@@ -50,7 +50,7 @@ from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.strategies import Hierarchical, LevelSolver, Weighted, _solve_level
 from aeromanip.references import Constant
 from aeromanip.robot.loader import load_robot
-from aeromanip.tasks import CogAlignment, ControlRate, EndEffectorTracking
+from aeromanip.tasks import CogAlignment, CogVelocity, ControlRate, EndEffectorTracking
 from aeromanip.tasks.posture import Posture
 
 # --- the SQP's options: each one's valid edge and first invalid value -------------------------
@@ -837,12 +837,14 @@ def test_the_second_order_correction_solves_the_last_qp_with_rows_taken_at_the_f
 
 
 def sparse_clearance_point(accel: bool):
-    """The sparse model of a 3-step tracking problem with the clearance rows (and, if
-    ``accel``, command-rate rows), linearised at a moving plan: ``tr, model, p, w, lin``."""
+    """The sparse model of a 3-step tracking and CoG-velocity problem with the clearance
+    rows (and, if ``accel``, command-rate rows), linearised at a moving plan: ``tr, model,
+    p, w, lin``."""
     x8 = load_robot("x8-3dof")
     bounds = Bounds.from_robot(x8)
     pb = Problem(x8, 3, 0.5, bounds.with_accel(np.full(7, 2.0)) if accel else bounds)
     pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    pb.add_task(CogVelocity(), weight=1.0)  # bilinear: the Hessian depends on u
     pb.add_task(ControlRate(), weight=0.1, level=None)
     pb.add_constraint(Clearance(0.1))
     strat = Weighted(pb, "sqp", {"codegen": False, "qpsol": "hpipm", "seed": "none"})
@@ -978,11 +980,12 @@ def test_the_sparse_gauss_newton_blocks_carry_the_stagewise_cost_rows_curvature(
     """Gauss-Newton blocks: ``2 J'J`` plus, per higher-level cost row ``|r_j|^2`` of the
     stage, ``2 max(lam_j, 0) J_j' J_j`` with ``J_j`` CasADi's Jacobian of the
     transcription's residuals ``r_j`` in that stage's variables (random multipliers); the
-    third level of three, so two cost rows a stage, after the clearance rows."""
+    third level of three, so two cost rows a stage (one bilinear in the state and the
+    command), after the clearance rows."""
     x8 = load_robot("x8-3dof")
     pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
     pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0, level=0)
-    pb.add_task(CogAlignment(), weight=1.0, level=1)
+    pb.add_task(CogVelocity(), weight=1.0, level=1)  # its rows' curvature depends on u
     pb.add_task(Posture(["q2"], [0.3]), weight=1.0, level=2)
     pb.add_task(ControlRate(), weight=0.1, level=None)
     pb.add_constraint(Clearance(0.1))  # path rows before the cost rows in each stage
