@@ -530,13 +530,17 @@ def test_the_sparse_models_hpipm_has_its_limits_and_prints_nothing(
 
 
 def test_hpipm_options_are_tried_on_hpipm_and_auto_checks_both_solvers():
-    """``qpsol = "hpipm"``: its own options pass, an unknown one is one line naming it;
-    ``"auto"`` may use either QP solver (dense up to ``condense_max_horizon``, sparse
-    beyond), so its options must suit both, whatever that horizon."""
+    """``qpsol = "hpipm"``: its own options pass, an unknown one or a value of the wrong type
+    is one line naming it; ``"auto"`` may use either QP solver (dense up to
+    ``condense_max_horizon``, sparse beyond), so its options must suit both, whatever that
+    horizon."""
     SqpBackend.check_options({"qpsol": "hpipm", "qpsol_options": {"hpipm": {"iter_max": 30}}})
     with pytest.raises(ConfigError, match=r"^solver_options\.qpsol_options: hpipm rejects "
                        r"them: Unknown option: no_such$"):  # fmt: skip
         SqpBackend.check_options({"qpsol": "hpipm", "qpsol_options": {"no_such": 1}})
+    with pytest.raises(ConfigError, match=r"^solver_options\.qpsol_options: hpipm rejects "
+                       r"them: .*OT_INT cannot be cast to OT_DICT"):  # fmt: skip
+        SqpBackend.check_options({"qpsol": "hpipm", "qpsol_options": {"hpipm": 3}})
     for horizon, own, other in ((1, "hpipm", "daqp"), (100, "daqp", "hpipm")):
         opts = {"qpsol": "auto", "condense_max_horizon": horizon,
                 "qpsol_options": {own: {}}}  # fmt: skip
