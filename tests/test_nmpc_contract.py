@@ -957,23 +957,25 @@ def test_the_sparse_model_builds_no_exact_hessian_it_will_not_use(opts):
     assert Weighted(pb, "sqp", base).solvers[0].backend.model.f_hess is not None
 
 
-def test_hpipm_solves_a_stagewise_hierarchy_as_ipopt_does():
-    """``mode = "stagewise"`` (each stage's higher cost a row of its own) on the sparse
-    model: each level's optimal cost as IPOPT's on the same NLPs. (Without the cost rows'
-    Gauss-Newton curvature in its Hessian the lower level ran to the iteration limit.)"""
+@pytest.mark.parametrize("mode", ["stagewise", "strict", "residual"])
+def test_hpipm_solves_a_hierarchy_as_ipopt_does(mode):
+    """Each mode the sparse model takes (the higher level's rows per stage: its cost
+    (``stagewise``) or its residuals (``strict``, ``residual``)): each level's optimal cost
+    as IPOPT's on the same NLPs. (Without the cost rows' Gauss-Newton curvature in its
+    Hessian the stagewise lower level ran to the iteration limit.)"""
     x8 = load_robot("x8-3dof")
     pb = Problem(x8, 4, 0.5, Bounds.from_robot(x8))
     pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0, level=0)
     pb.add_task(CogAlignment(), weight=1.0, level=1)
     pb.add_task(ControlRate(), weight=0.1, level=None)
     opts = {"codegen": False, "qpsol": "hpipm", "seed": "none", "tol": 1e-9}
-    hp = Hierarchical(pb, mode="stagewise", backend="sqp", options=opts)
+    hp = Hierarchical(pb, mode=mode, backend="sqp", options=opts)
     tr = hp.transcription
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
     w0 = tr.pack(*rest(pb), np.zeros(7))
     assert type(hp.solvers[1].backend.model).__name__ == "MultipleShootingModel"
     got = hp.solve(p, [w0, None])
-    ref = Hierarchical(pb, mode="stagewise", backend="ipopt").solve(p, [w0, None])
+    ref = Hierarchical(pb, mode=mode, backend="ipopt").solve(p, [w0, None])
     assert got.success and ref.success and got.status == ref.status == "ok"
     for mine, theirs in zip(got.levels, ref.levels, strict=True):
         assert mine.cost == pytest.approx(theirs.cost, rel=1e-4, abs=1e-9)
