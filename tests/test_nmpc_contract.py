@@ -317,6 +317,7 @@ def test_the_hessian_option_is_the_one_every_qp_uses(small_problem, hessian, fir
 
 # --- warm start with rate responses: the guess starts from the measured rates --------------------
 
+X0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
 TAU = np.array([0.3, 0.25, 0.2, 0.08, 0.0, 0.0, 0.05])  # s; joints 1-2 follow at once
 
 
@@ -371,6 +372,26 @@ def test_reset_with_a_wrong_previous_command_names_it(small_problem):
     np.testing.assert_array_equal(ctrl.u_prev, np.arange(7.0))
 
 
+@pytest.mark.parametrize(
+    ("state", "t", "rates", "message"),
+    [
+        ([0.0] * 6, 0.0, None, r"state: expected 7 values \(x, y, z, yaw, q1, q2, q3\), got 6"),
+        (X0, 0.0, [0.0, 1.0], r"rates: expected 7 values \(x, y, z, yaw, q1, q2, q3\), got 2"),
+        (X0, 0.0, [0.0] * 5 + [math.inf, 0.0], r"rates: q2 is not finite \(inf\)"),
+        (X0, math.nan, None, r"t: must be a finite number of seconds, got nan"),
+        (X0, math.inf, None, r"t: must be a finite number of seconds, got inf"),
+        (X0, "0.5", None, r"t: must be a finite number of seconds, got '0.5'"),
+        (X0, True, None, r"t: must be a finite number of seconds, got True"),
+    ],
+)
+def test_a_step_refuses_bad_input_with_one_line_naming_it(small_problem, state, t, rates, message):
+    """Before any solve: the state and the measured rates as 7 finite numbers (each error
+    names the vector and the entry), the time a finite number of seconds."""
+    ctrl = Controller(small_problem, "weighted", "ipopt")
+    with pytest.raises(StateError, match=f"^{message}$"):
+        ctrl.step(state, t, rates)
+
+
 # --- the command reports the solver's effort; a solve over budget is a failure -----------------
 
 
@@ -385,8 +406,6 @@ def _recorded(ctrl):
     ctrl.strategy.solve = recording
     return results
 
-
-X0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
 
 
 def test_the_command_reports_the_iterations_and_time_of_its_solve(small_problem):
