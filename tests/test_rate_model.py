@@ -7,11 +7,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from aeromanip.errors import ConfigError
 from aeromanip.experiment.closed_loop import simulate
 from aeromanip.experiment.scenario import load_scenarios
 from aeromanip.nmpc.constraints import Bounds
 from aeromanip.nmpc.controller import Controller
-from aeromanip.nmpc.model import RateModel
+from aeromanip.nmpc.model import MAX_TAU, RateModel
 from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.strategies import Weighted
 from aeromanip.references import Constant
@@ -85,10 +86,19 @@ def test_without_time_constants_it_is_the_papers_model():
     np.testing.assert_allclose(model.A @ z + model.B @ u, np.concatenate([X0 + 0.5 * u, u]))
 
 
-@pytest.mark.parametrize("tau", [[-0.1] + [0.0] * 6, [np.nan] + [0.0] * 6, [0.1] * 6])
+@pytest.mark.parametrize(
+    "tau",
+    [[-0.1] + [0.0] * 6, [np.nan] + [0.0] * 6, [0.1] * 6, [MAX_TAU * 1.001] + [0.0] * 6],
+)
 def test_bad_time_constants_are_refused(tau):
-    with pytest.raises(Exception, match=r"response\.tau"):
+    with pytest.raises(ConfigError, match=r"^response\.tau: "):
         RateModel(7, 0.1, np.array(tau))
+
+
+def test_time_constants_at_either_end_of_the_range_are_taken():
+    """0 (the command followed at once) and ``MAX_TAU`` itself are allowed."""
+    model = RateModel(7, 0.1, np.array([0.0, MAX_TAU] + [0.0] * 5))
+    assert model.lagged.tolist() == [1]
 
 
 def problem(tau=TAU, accel=ACCEL, horizon=8, dt=0.1, weights_dt=None, target=(0.4, 0.3, 0.5)):

@@ -11,10 +11,15 @@ import pytest
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.closed_loop import simulate
 from aeromanip.experiment.scenario import load_scenarios
-from aeromanip.nmpc.backends import BACKENDS
-from aeromanip.references import REFERENCES
+from aeromanip.nmpc.backends import BACKENDS, make_backend
+from aeromanip.nmpc.backends.nlpsol import IpoptBackend
+from aeromanip.nmpc.constraints import Bounds
+from aeromanip.nmpc.problem import Problem
+from aeromanip.nmpc.transcription import Transcription
+from aeromanip.references import REFERENCES, Constant
+from aeromanip.robot.loader import load_robot
 from aeromanip.sim.base import SIMULATORS
-from aeromanip.tasks import TASKS
+from aeromanip.tasks import TASKS, EndEffectorTracking
 
 USER_FILES = {
     "lift_task.py": '''
@@ -131,6 +136,18 @@ def test_builtins_are_found_by_name():
     assert set(BACKENDS.names()) >= {"ipopt", "fatrop", "sqp", "sqp-rti"}
     assert set(SIMULATORS.names()) >= {"kinematic", "physics"}
     assert TASKS.get("cog").kind == "cog"
+
+
+def test_make_backend_defaults_to_ipopt_and_names_the_key_of_an_unknown_backend():
+    """The API's own check (a scenario's is made when it loads): ``controller.backend``."""
+    robot = load_robot("x8-3dof")
+    pb = Problem(robot, 4, 0.1, Bounds.from_robot(robot))
+    pb.add_task(EndEffectorTracking(Constant([0.4, 0.3, 0.5])), weight=1.0)
+    tr = Transcription(pb, pb.entries)
+    backend = make_backend(tr)
+    assert type(backend) is IpoptBackend and backend.name == "ipopt"
+    with pytest.raises(ConfigError, match=r"^controller\.backend: 'ipoptt' is not one of \["):
+        make_backend(tr, "ipoptt")
 
 
 def test_user_classes_from_a_scenario_toml_fly_a_run(user_package):

@@ -47,7 +47,10 @@ def main() -> int:
         raise SystemExit(f"imported {aeromanip.__file__}, not the copy in {mdir}")
     names = names_file.read_text().split()
     out = json.loads(results.read_text()) if results.exists() else {}
-    pytest_args = ["-x", "-q", "-p", "no:cacheprovider", "-p", "no:randomly", *args.tests]
+    # --tb=no: a traceback through a mutated module (every mutant's copy of each function)
+    # takes pytest seconds to parse, longer than the tests
+    pytest_args = ["-x", "-q", "--tb=no", "-p", "no:cacheprovider", "-p", "no:randomly"]
+    pytest_args += args.tests
     for name in names:
         if name in out:
             continue
