@@ -704,7 +704,7 @@ class Scripted:
         self.answers, self.calls = list(answers), []
 
     def solve(self, w0, p, lbg, ubg, lam_g0=None, lam_x0=None, shift=True):
-        self.calls.append((np.array(w0), lam_g0, lam_x0))
+        self.calls.append((np.array(w0), lam_g0, lam_x0, (p, lbg, ubg)))
         return self.answers.pop(0)
 
 
@@ -721,9 +721,12 @@ def test_a_failed_warm_solve_is_retried_cold_and_both_attempts_are_counted(statu
     backend = Scripted(_result(False, status, last, 0.25, 7), _result(True, "ok", last, 0.5, 3))
     warm = _result(True, "ok", last, 0.1, 1)
     st = LevelSolver([], SimpleNamespace(lbg=np.zeros(2)), backend, warm=warm)
-    res = _solve_level(st, np.zeros(1), w0, np.zeros(2))
+    p, ubg = np.array([7.0]), np.array([1.0, 2.0])
+    res = _solve_level(st, p, w0, ubg)
     assert (res.success, res.iterations, res.solve_time_s) == (True, 10, 0.75)
-    (w_warm, lam_g1, lam_x1), (w_cold, lam_g2, lam_x2) = backend.calls
+    (w_warm, lam_g1, lam_x1, nlp1), (w_cold, lam_g2, lam_x2, nlp2) = backend.calls
+    for given in (nlp1, nlp2):  # both attempts solve the same NLP
+        assert given[0] is p and given[1] is st.tr.lbg and given[2] is ubg
     np.testing.assert_array_equal(w_warm, w0)
     assert lam_g1 is warm.lam_g and lam_x1 is warm.lam_x  # warm: the last multipliers
     assert lam_g2 is None and lam_x2 is None  # the retry: cold

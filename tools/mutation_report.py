@@ -18,11 +18,22 @@ on its survivors in another copy with the full selection)::
     python tools/mutation_report.py --phase-b ../mut_b --remaining  # phase B's to-do list
 
 A mutant phase A did not kill takes phase B's verdict once phase B has checked it.
+
+Results of ``tools/mutation_subset.py`` join the table (the no-op control names ending in
+``_99999`` are left out)::
+
+    python tools/mutation_report.py --phase-b ../mut_b --regenerated new/*.json --subset s/*.json
+
+``--regenerated``: whole functions whose mutants were generated again (a later commit or
+configuration) and checked by ``mutation_subset.py``: the run's records of those functions
+are replaced by these. ``--subset``: a mutant the run did not kill and a subset run did
+counts as "killed by later tests". ``--survivors`` then lists what is left.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import subprocess
 import sys
@@ -31,6 +42,7 @@ from pathlib import Path
 
 LINE = re.compile(r"^\s*(?P<name>aeromanip\.\S+?__mutmut_\d+): (?P<status>.+)$")
 KILLED = {"killed", "timeout", "segfault"}  # a test failed, ran too long, or crashed
+LATER = "killed by later tests"  # by a mutation_subset.py run
 NOT_COUNTED = {"skipped", "caught by type check", "not checked"}
 
 
@@ -62,14 +74,54 @@ def combined(rows: list[tuple[str, str]], phase_b: list[tuple[str, str]]) -> lis
     ]
 
 
+def function_of(name: str) -> str:
+    """The mutated function of a mutant name (the name without ``__mutmut_<n>``)."""
+    return name.rsplit("__mutmut_", 1)[0]
+
+
+def subset_results(paths: list[Path]) -> dict[str, bool]:
+    """Mutant name -> killed, from ``mutation_subset.py`` result files (later files add
+    kills; the ``_99999`` no-op controls are left out)."""
+    out: dict[str, bool] = {}
+    for path in paths:
+        for name, code in json.loads(path.read_text()).items():
+            if not name.endswith("__mutmut_99999"):
+                out[name] = out.get(name, False) or code != 0
+    return out
+
+
+def with_subsets(
+    rows: list[tuple[str, str]],
+    regenerated: list[Path],
+    subset: list[Path],
+    override: Path | None = None,
+) -> list[tuple[str, str]]:
+    """The run's verdicts, corrected by ``override`` (name -> status), with whole
+    functions replaced by ``regenerated`` results and the kills of ``subset`` runs added
+    (see the module docstring)."""
+    status = dict(rows)
+    if override is not None:
+        status.update(json.loads(override.read_text()))
+    fresh = subset_results(regenerated)
+    replaced = {function_of(name) for name in fresh}
+    status = {name: s for name, s in status.items() if function_of(name) not in replaced}
+    status.update({name: LATER if killed else "survived" for name, killed in fresh.items()})
+    for name, killed in subset_results(subset).items():
+        if killed and status.get(name) not in KILLED | NOT_COUNTED | {None}:
+            status[name] = LATER
+    return sorted(status.items())
+
+
 def table(rows: list[tuple[str, str]]) -> str:
-    """Markdown: per module, mutants, killed, survived, no tests, kill rate."""
+    """Markdown: per module, mutants, killed (by the run, by later tests), survived,
+    no tests, kill rate."""
     per: dict[str, Counter] = defaultdict(Counter)
     for name, status in rows:
         per[module_of(name)][status] += 1
     lines = [
-        "| module | mutants | killed | survived | no tests | kill rate |",
-        "|---|---|---|---|---|---|",
+        "| module | mutants | killed by the run | killed by later tests | survived | no tests "
+        "| kill rate | not checked |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     total = Counter()
     for mod in sorted(per):
@@ -83,8 +135,11 @@ def table(rows: list[tuple[str, str]]) -> str:
 def _row(label: str, c: Counter) -> str:
     killed = sum(c[s] for s in KILLED)
     counted = sum(v for s, v in c.items() if s not in NOT_COUNTED)
-    rate = f"{100 * killed / counted:.1f} %" if counted else "-"
-    return f"| {label} | {counted} | {killed} | {c['survived']} | {c['no tests']} | {rate} |"
+    rate = f"{100 * (killed + c[LATER]) / counted:.1f} %" if counted else "-"
+    return (
+        f"| {label} | {counted} | {killed} | {c[LATER]} | {c['survived']} | {c['no tests']} "
+        f"| {rate} | {sum(c[s] for s in NOT_COUNTED)} |"
+    )
 
 
 def main() -> int:
@@ -95,6 +150,9 @@ def main() -> int:
     p.add_argument(
         "--remaining", action="store_true", help="phase A's unkilled mutants B has not checked"
     )
+    p.add_argument("--regenerated", type=Path, nargs="*", default=[], metavar="JSON")
+    p.add_argument("--subset", type=Path, nargs="*", default=[], metavar="JSON")
+    p.add_argument("--override", type=Path, metavar="JSON", help="name -> status, by hand")
     args = p.parse_args()
     if args.remaining and args.phase_b is None:
         p.error("--remaining needs --phase-b DIR")
@@ -108,9 +166,10 @@ def main() -> int:
                     print(name)
             return 0
         rows = combined(rows, phase_b)
+    rows = with_subsets(rows, args.regenerated, args.subset, args.override)
     if args.survivors:
         for name, status in sorted(rows):
-            if status not in KILLED | NOT_COUNTED:
+            if status not in KILLED | NOT_COUNTED | {LATER}:
                 print(f"{module_of(name)}\t{name}\t{status}")
     else:
         print(table(rows))

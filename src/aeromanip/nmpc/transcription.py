@@ -117,7 +117,7 @@ def _stage_model(problem: Problem, objective: list[int], groups: list[list[int]]
         return sum((c[i] for i in ids), ca.SX(0))
 
     def stack(r: list[ca.SX], ids: list[int]) -> ca.SX:
-        return ca.vertcat(*[r[i] for i in ids]) if ids else ca.SX(0, 1)
+        return ca.vertcat(*[r[i] for i in ids])  # none: 0 x 1
 
     def functions(name: str, args: list[ca.SX], r: list[ca.SX], path: PathRows) -> tuple:
         c = [ca.sumsqr(ri) for ri in r]
