@@ -681,6 +681,8 @@ def test_a_nan_in_either_side_of_a_box_is_refused():
         kind = side[0]
         with pytest.raises(ConfigError, match=rf"^bounds\.{kind}\.q2: must not be NaN"):
             Bounds(**{**vars(b), side: values})
+        with pytest.raises(ConfigError, match=rf"^bounds\.{kind}: expected 7 entries"):
+            Bounds(**{**vars(b), side: values[:6]})  # either side's length alone
 
 
 def test_integer_time_constants_give_the_same_first_order_response():
@@ -1093,7 +1095,8 @@ def test_bounds_as_dict_lists_each_finite_bound_under_its_log_column():
     d = b.as_dict()
     assert d["z"] == [0.8, np.inf]
     assert d["q2"] == [-1.6, 1.6] and "x" not in d and "yaw" not in d
-    assert not any(k.startswith("u_") for k in d)  # no command bounds asked
+    assert not any(k.startswith("u_") for k in d)  # no command bounds asked: none at all
+    assert np.all(b.u_lower == -np.inf) and np.all(b.u_upper == np.inf)
     v = Bounds.from_robot(x8).as_dict()
     assert v["u_x"] == [-1.0, 1.0] and v["u_q3"] == [-1.0, 1.0] and "U_x" not in v
 

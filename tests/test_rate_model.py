@@ -357,6 +357,28 @@ def test_after_a_discard_a_failed_solve_falls_back_on_the_plans_next_command():
     np.testing.assert_array_equal(late.u, first.plan_u[2])
 
 
+@pytest.mark.parametrize("lost", ["failed", "discarded"])
+def test_after_a_lost_step_the_next_guess_is_the_flying_plan_from_the_stage_it_reached(lost):
+    """Step 1 fails (the plan's command 1 flies as the fallback) or comes too late
+    (discarded: the same): step 2's guess is step 0's plan from its stage 2 on, the last
+    command repeated, starting from the measured state."""
+    pb = problem(tau=None, accel=None, horizon=5)
+    ctrl = Controller(pb, "weighted", "ipopt")
+    first = ctrl.step(X0, 0.0)
+    if lost == "failed":
+        ctrl.time_budget_s = 1e-12
+        assert ctrl.step(X0, pb.dt).status == "fallback"
+        ctrl.time_budget_s = None
+    else:
+        ctrl.step(X0, pb.dt)
+        ctrl.discard()
+    x2 = X0 + 0.01
+    X, U = ctrl.strategy.transcription.unpack(ctrl.initial_guesses(x2)[0])
+    P, Q = first.plan_x, first.plan_u
+    np.testing.assert_array_equal(X, np.vstack([x2, P[3:], P[-1:], P[-1:]]))
+    np.testing.assert_array_equal(U, np.vstack([Q[2:], Q[-1:], Q[-1:]]))
+
+
 def test_discarding_the_first_step_leaves_nothing_flying():
     pb = problem(tau=None, accel=None, horizon=3)
     ctrl = Controller(pb, "weighted", "ipopt")

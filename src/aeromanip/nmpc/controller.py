@@ -125,7 +125,7 @@ class Controller:
         return a
 
     def _initial_guess(self, x0: np.ndarray) -> np.ndarray:
-        """The last plan moved one step on, or (without one) rest at ``x0``."""
+        """The last plan moved on to now, or (without one) rest at ``x0``."""
         if self._plan is not None:
             return self._shifted(x0, *self._plan[:2])
         N = self.problem.horizon
@@ -133,14 +133,18 @@ class Controller:
         return self.strategy.transcription.pack(X, U, self.u_prev, self._rates)
 
     def _shifted(self, x0: np.ndarray, X: np.ndarray, U: np.ndarray) -> np.ndarray:
-        """A plan moved one step on (last command repeated), starting from ``x0``."""
-        X = np.vstack([X[1:], X[-1:]])
-        U = np.vstack([U[1:], U[-1:]])
+        """A plan of the last flown solve moved on to now (last command repeated),
+        starting from ``x0``: one step, or more after fallbacks and discards (the plan's
+        age: it has flown ``age`` steps more since)."""
+        steps = 1 + (self._plan[2] if self._plan is not None else 0)
+        X = np.vstack([X[steps:], np.repeat(X[-1:], steps, axis=0)])
+        U = np.vstack([U[steps:], np.repeat(U[-1:], steps, axis=0)])
         X[0] = x0
         return self.strategy.transcription.pack(X, U, self.u_prev, self._rates)
 
     def initial_guesses(self, x0: np.ndarray) -> list[np.ndarray | None]:
-        """Per level: its own last solution shifted, if any (level 0: else the last plan)."""
+        """Per level: its own last solution moved on to now, if any (level 0: else the
+        last plan)."""
         tr = self.strategy.transcription
         n = len(self.strategy.solvers)
         own = [self._shifted(x0, *tr.unpack(w)) for w in self._level_w[:n]]
