@@ -1099,6 +1099,7 @@ def test_bounds_as_dict_lists_each_finite_bound_under_its_log_column():
     assert np.all(b.u_lower == -np.inf) and np.all(b.u_upper == np.inf)
     v = Bounds.from_robot(x8).as_dict()
     assert v["u_x"] == [-1.0, 1.0] and v["u_q3"] == [-1.0, 1.0] and "U_x" not in v
+    assert v["u_z"] == [-0.7, 0.7] and v["u_yaw"] == [-0.8, 0.8]  # x8-3dof.toml's own
 
 
 def test_a_solve_cut_by_casadi_catching_ctrl_c_raises_it_again_only_where_python_would(

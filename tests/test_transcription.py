@@ -41,7 +41,7 @@ def test_each_tasks_stage_and_terminal_cost_is_its_formula_at_every_stage():
     pb.add_task(CogVelocity(), weight=0.0)  # no terminal term, and weighted out here
     tr = Transcription(pb, pb.entries)
     rng = np.random.default_rng(4)
-    X = rng.uniform(-0.5, 0.5, (N + 1, 7)) + [0, 0, 1, 0, 0.3, 0.4, -0.8]
+    X = rng.uniform(-0.5, 0.5, (N + 1, 7)) + np.array([0, 0, 1, 0, 0.3, 0.4, -0.8])
     U, u_prev, t0 = rng.normal(0, 0.3, (N, 7)), rng.normal(0, 0.3, 7), 1.3
     p = tr.parameters(X[0], u_prev, pb.stage_params(t0))
     costs = tr.costs(tr.pack(X, U, u_prev), p)  # tasks x stages
