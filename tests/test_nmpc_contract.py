@@ -407,7 +407,6 @@ def _recorded(ctrl):
     return results
 
 
-
 def test_the_command_reports_the_iterations_and_time_of_its_solve(small_problem):
     ctrl = Controller(small_problem, "weighted", "ipopt")
     results = _recorded(ctrl)
@@ -533,7 +532,7 @@ def test_the_sparse_models_hpipm_has_its_limits_and_prints_nothing(
             "qpsol_options": {"hpipm": {"warm_start": True}}}  # fmt: skip
     strat = Weighted(small_problem, "sqp", opts)
     monkeypatch.undo()
-    (solver, given), = made
+    ((solver, given),) = made
     tol, iterations = HPIPM_LIMITS["rti" if rti else "sqp"]
     assert solver == "hpipm" and given["print_time"] is False
     hpipm = given["hpipm"]
