@@ -466,12 +466,12 @@ def test_pack_unpack_round_trip_and_the_documented_layout():
 
 def test_shift_map_sends_each_row_to_its_twin_one_stage_on():
     rows = [
-        ("gap", 0), ("gap", 0), ("hier0", 0),
-        ("gap", 1), ("gap", 1), ("path", 1), ("hier0", 1),
+        ("gap", 0), ("gap", 0), ("gap", 0), ("hier0", 0),
+        ("gap", 1), ("gap", 1), ("gap", 1), ("path", 1), ("hier0", 1),
         ("path", 2), ("hier0", 2), ("terminal", 2),
         ("hier1", -1),
     ]  # fmt: skip
-    expected = [3, 4, 6, 3, 4, 7, 8, 7, 8, 9, 10]
+    expected = [4, 5, 6, 8, 4, 5, 6, 9, 10, 9, 10, 11, 12]
     np.testing.assert_array_equal(shift_map(rows), expected)
 
 

@@ -233,8 +233,8 @@ class Transcription:
         self.residuals = ca.vertcat(*res_obj)
         self.g = ca.vertcat(*self.rows.exprs)
         self.lbw, self.ubw = np.concatenate(lbw), np.concatenate(ubw)
-        self.lbg = np.concatenate(self.rows.lower) if self.rows.lower else np.zeros(0)
-        self.ubg = np.concatenate(self.rows.upper) if self.rows.upper else np.zeros(0)
+        # never empty: every stage but the last has its gap rows
+        self.lbg, self.ubg = np.concatenate(self.rows.lower), np.concatenate(self.rows.upper)
         self.equality = (self.lbg == self.ubg).tolist()
         self.g_kind, self.g_stage = self.rows.kind, self.rows.stage
         # per task (rows) and stage (columns) weighted costs, for reports and hierarchy
