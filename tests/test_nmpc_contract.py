@@ -408,7 +408,8 @@ def _recorded(ctrl):
 
 
 def test_the_command_reports_the_iterations_and_time_of_its_solve(small_problem):
-    ctrl = Controller(small_problem, "weighted", "ipopt")
+    ctrl = Controller(small_problem)  # by default: the weighted sum, solved by IPOPT
+    assert type(ctrl.strategy) is Weighted and ctrl.strategy.solvers[0].backend.name == "ipopt"
     results = _recorded(ctrl)
     cmd = ctrl.step(X0, 0.0)
     assert cmd.status == "ok" and cmd.message == ""

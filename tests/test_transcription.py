@@ -68,3 +68,14 @@ def test_each_tasks_stage_and_terminal_cost_is_its_formula_at_every_stage():
     r = ca.Function("r", [tr.w, tr.p], [tr.residuals])(tr.pack(X, U, u_prev), p)
     assert r.numel() == N * (7 + 3 + 1 + 2) + (7 + 3 + 1)
     assert float(ca.sumsqr(r)) == pytest.approx(expected.sum(), rel=1e-12)
+
+
+def test_a_row_only_the_first_command_moves_is_movable():
+    """``g_movable``: the command-rate rows of stage 0, ``u0 - v0``, depend on the measured
+    ``v0`` and on ``u0`` alone (``u0``'s x the first decision variable): movable."""
+    pb = Problem(X8, N, DT, Bounds.from_robot(X8).with_accel(np.full(7, 2.0)))
+    pb.add_task(EndEffectorTracking(Lissajous([0.4, 0.3, 0.5], [0.1] * 3, [0.5] * 3)))
+    tr = Transcription(pb, pb.entries)
+    kind, stage = np.asarray(tr.g_kind), np.asarray(tr.g_stage)
+    first = np.flatnonzero((kind == "accel") & (stage == 0))
+    assert len(first) == 7 and tr.g_movable[first].all()
