@@ -29,6 +29,24 @@ SOLVERS: dict[str, dict[str, Any]] = {
     "daqp": {"daqp": {"primal_tol": 1e-9, "iter_limit": 2000}},
     "qpoases": {"printLevel": "none", "sparse": False},
 }
+#: DAQP's exit flags (its ``types.h``), which CasADi reports as the bare number
+DAQP_EXIT_FLAGS = {
+    2: "soft optimal",
+    -1: "infeasible",
+    -2: "cycling",
+    -3: "unbounded",
+    -4: "iteration limit",
+    -5: "nonconvex",
+    -6: "overdetermined initial active set",
+    -7: "time limit",
+}
+
+
+def status_text(solver: str, status: Any) -> str:
+    """A QP solver's return status as words: DAQP's exit flag by its name."""
+    if solver == "daqp" and status in DAQP_EXIT_FLAGS:
+        return f"{DAQP_EXIT_FLAGS[status]} (DAQP exit flag {status})"
+    return str(status)
 
 
 @dataclass
@@ -202,5 +220,5 @@ class DenseQp:
             and (d >= lbx - tol).all()
             and (d <= ubx + tol).all()
         )
-        status = "" if ok else str(q.buf.stats().get("return_status", "infeasible"))
+        status = "" if ok else status_text(self.solver, q.buf.stats().get("return_status", "?"))
         return d, q.out["lam_a"].copy(), q.out["lam_x"].copy(), status
