@@ -94,7 +94,6 @@ class Controller:
             )
         else:
             raise ConfigError(f"strategy: {strategy!r} is not 'weighted' or 'hierarchical'")
-        self.strategy_name = strategy
         self.time_budget_s = time_budget_s
         self.nx = problem.kin.nx
         self.reset()
