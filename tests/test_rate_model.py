@@ -385,6 +385,7 @@ def test_after_a_lost_step_the_next_guess_is_the_flying_plan_from_the_stage_it_r
 def test_discarding_the_first_step_leaves_nothing_flying():
     pb = problem(tau=None, accel=None, horizon=3)
     ctrl = Controller(pb, "weighted", "ipopt")
+    ctrl.discard()  # before any step: nothing to forget
     ctrl.step(X0, 0.0)
     ctrl.discard()  # the first solve came too late: no plan was ever flown
     np.testing.assert_array_equal(ctrl.u_prev, np.zeros(7))

@@ -52,7 +52,8 @@ def shift_map(rows: Sequence[tuple[str, int]]) -> np.ndarray:
 @dataclass
 class RowBook:
     """The constraint rows ``g`` of an NLP, as they are added: expressions, bounds, and
-    per row its kind (``"gap"``, ``"path"``, ``"terminal"``, ``"hier<j>"``) and stage."""
+    per row its kind (``"gap"``, ``"path"``, ``"terminal"``, ``"accel"``, ``"hier<j>"``) and
+    stage."""
 
     exprs: list[ca.SX] = field(default_factory=list)
     lower: list[np.ndarray] = field(default_factory=list)
