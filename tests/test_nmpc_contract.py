@@ -399,12 +399,15 @@ def test_a_step_refuses_bad_input_with_one_line_naming_it(small_problem, state, 
 # --- the command reports the solver's effort; a solve over budget is a failure -----------------
 
 
-def _recorded(ctrl):
+def _recorded(ctrl, solve_time_s=None):
+    """Record the strategy's answers (with ``solve_time_s`` in place of the measured one)."""
     results = []
     solve = ctrl.strategy.solve
 
     def recording(p, gs):
         results.append(solve(p, gs))
+        if solve_time_s is not None:
+            results[-1].solve_time_s = solve_time_s
         return results[-1]
 
     ctrl.strategy.solve = recording
@@ -423,15 +426,16 @@ def test_the_command_reports_the_iterations_and_time_of_its_solve(small_problem)
 
 
 def test_a_solve_over_the_time_budget_is_a_failure_that_says_both_times_in_ms(small_problem):
-    budget = 1e-7  # [s]: no solve is that fast
-    ctrl = Controller(small_problem, "weighted", "ipopt", time_budget_s=budget)
-    results = _recorded(ctrl)
+    ctrl = Controller(small_problem, "weighted", "ipopt", time_budget_s=0.25)
+    results = _recorded(ctrl, solve_time_s=0.3)  # as if the solve had taken 300 ms
     cmd = ctrl.step(X0, 0.0)
-    t_ms = 1e3 * results[0].solve_time_s
     assert results[0].success and cmd.status == "stopped"  # no earlier plan to fall back on
-    assert cmd.message == f"over budget: {t_ms:.1f} ms > {1e3 * budget:.1f} ms"
+    assert cmd.message == "over budget: 300.0 ms > 250.0 ms"
     assert cmd.iterations == results[0].iterations
     np.testing.assert_array_equal(cmd.u, np.zeros(7))
+    ctrl.reset()
+    _recorded(ctrl, solve_time_s=0.25)  # at the budget: in time
+    assert ctrl.step(X0, 0.0).status == "ok"
 
 
 # --- the sparse (HPIPM) QP model: its step check and its merit ---------------------------------
@@ -671,6 +675,12 @@ def test_a_failed_middle_level_keeps_the_higher_levels_solution():
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
     res = h.solve(p, [tr.pack(*rest(pb), np.zeros(7))])
     assert res.success and res.status == "partial: Infeasible_Problem_Detected"
+    # through the controller: level 0's command flies, reported as partial
+    ctrl = Controller(pb, "hierarchical", hierarchy={"mode": "stagewise"})
+    ctrl.strategy.solvers[1].backend.solve = failing
+    cmd = ctrl.step(X0, 0.0)
+    assert (cmd.status, cmd.message) == ("partial", "partial: Infeasible_Problem_Detected")
+    np.testing.assert_allclose(cmd.u, tr.unpack(res.level_w[0])[1][0], atol=1e-6)
     assert [(r.level, r.success) for r in res.levels] == [(0, True), (1, False)]
     assert len(res.level_w) == 1
     np.testing.assert_array_equal(res.w, res.level_w[0])

@@ -334,7 +334,8 @@ class Transcription:
         self._costs_buf = None
 
     def costs(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """``stage_costs(w, p)`` as an array (tasks x stages), without conversions."""
+        """``stage_costs(w, p)`` as an array (tasks x stages), without conversions (its
+        output is dense: ``_build`` densifies it)."""
         if self._costs_buf is None:
             f = self.stage_costs
             buf, run = f.buffer()
@@ -343,10 +344,8 @@ class Transcription:
             for i, a in enumerate(args):
                 buf.set_arg(i, memoryview(a))
             buf.set_res(0, memoryview(out))
-            self._costs_buf = (buf, run, args, out, f.size_out(0), f.sparsity_out(0).is_dense())
-        buf, run, args, out, shape, dense = self._costs_buf
-        if not dense:
-            return np.asarray(self.stage_costs(w, p))
+            self._costs_buf = (buf, run, args, out, f.size_out(0))
+        buf, run, args, out, shape = self._costs_buf
         args[0][:] = w
         args[1][:] = p
         run()
