@@ -1116,6 +1116,18 @@ def test_bounds_as_dict_lists_each_finite_bound_under_its_log_column():
     assert v["u_z"] == [-0.7, 0.7] and v["u_yaw"] == [-0.8, 0.8]  # x8-3dof.toml's own
 
 
+def test_a_solvers_status_is_its_text_or_casadis_name_for_a_number():
+    """``nlpsol._status_text``: IPOPT's text as it is; fatrop's number with CasADi's
+    unified name; nothing reported is ``unknown``."""
+    from aeromanip.nmpc.backends.nlpsol import _status_text
+
+    assert _status_text({"return_status": "Solve_Succeeded"}) == "Solve_Succeeded"
+    assert _status_text({}) == "unknown"
+    fatrop = {"return_status": 2, "unified_return_status": "SOLVER_RET_INFEASIBLE"}
+    assert _status_text(fatrop) == "SOLVER_RET_INFEASIBLE (code 2)"
+    assert _status_text({"return_status": 2}) == "SOLVER_RET_UNKNOWN (code 2)"
+
+
 def test_a_solve_cut_by_casadi_catching_ctrl_c_raises_it_again_only_where_python_would(
     monkeypatch,
 ):

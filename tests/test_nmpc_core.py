@@ -256,8 +256,13 @@ def test_bad_task_declarations_are_clear_errors():
         pb.add_task(ControlRate(), weight={"pitch": 1.0})
     with pytest.raises(ConfigError, match=r"tasks\.cog\.weight: expected 1 or 2 values"):
         pb.add_task(CogAlignment(), weight=[1.0, 2.0, 3.0])
-    with pytest.raises(ConfigError, match="horizon"):
-        Problem(X8, 0, 0.5)
+    for horizon in (0, 2.0, True):
+        with pytest.raises(ConfigError, match=r"^horizon: must be an integer >= 1, got "):
+            Problem(X8, horizon, 0.5)
+    for dt in (0.0, -0.1, np.inf, np.nan):
+        with pytest.raises(ConfigError, match=r"^dt: must be a finite number > 0, got "):
+            Problem(X8, 10, dt)
+    assert Problem(X8, 1, 0.5).horizon == 1  # one step is a horizon
     with pytest.raises(ConfigError, match="strategy"):
         Controller(make_problem(), "lexicographic")
 
