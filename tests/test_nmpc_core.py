@@ -262,6 +262,8 @@ def test_bad_task_declarations_are_clear_errors():
     for dt in (0.0, -0.1, np.inf, np.nan):
         with pytest.raises(ConfigError, match=r"^dt: must be a finite number > 0, got "):
             Problem(X8, 10, dt)
+        with pytest.raises(ConfigError, match=r"^weights_dt: must be a finite number > 0, got"):
+            Problem(X8, 10, 0.5, weights_dt=dt)
     assert Problem(X8, 1, 0.5).horizon == 1  # one step is a horizon
     with pytest.raises(ConfigError, match="strategy"):
         Controller(make_problem(), "lexicographic")
