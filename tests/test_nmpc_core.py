@@ -250,6 +250,14 @@ def test_weights_named_by_dof_push_motion_to_the_arm():
     assert shares["arm"] < 0.2 < 0.8 < shares["platform"]
 
 
+def test_a_weight_mapping_names_dofs_and_the_others_take_its_default_or_zero():
+    pb = Problem(X8, 10, 0.5)
+    e = pb.add_task(ControlRate(), weight={"x": 2.0, "default": 0.5})
+    np.testing.assert_array_equal(e.weight, [2.0, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5])
+    e = pb.add_task(ControlRate(), weight={"q1": 3.0}, name="rate_q1")
+    np.testing.assert_array_equal(e.weight, [0, 0, 0, 0, 3.0, 0, 0])
+
+
 def test_bad_task_declarations_are_clear_errors():
     pb = Problem(X8, 10, 0.5)
     with pytest.raises(ConfigError, match=r"tasks\.control_rate\.weight\.pitch"):
