@@ -9,7 +9,7 @@ import pytest
 from aeromanip.errors import ConfigError, InfeasibleProblemError, StateError
 from aeromanip.nmpc.constraints import Bounds, Clearance, UserConstraint
 from aeromanip.nmpc.controller import Controller
-from aeromanip.nmpc.problem import Problem
+from aeromanip.nmpc.problem import MAX_WEIGHT, Problem
 from aeromanip.references import Constant
 from aeromanip.robot.loader import load_robot
 from aeromanip.tasks import (
@@ -256,6 +256,10 @@ def test_a_weight_mapping_names_dofs_and_the_others_take_its_default_or_zero():
     np.testing.assert_array_equal(e.weight, [2.0, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5])
     e = pb.add_task(ControlRate(), weight={"q1": 3.0}, name="rate_q1")
     np.testing.assert_array_equal(e.weight, [0, 0, 0, 0, 3.0, 0, 0])
+    for bad in (-1.0, np.inf, MAX_WEIGHT * 1.01, [1.0, 2.0, -0.1, 0, 0, 0, 0]):
+        with pytest.raises(ConfigError, match=r"^tasks\.bad\.weight: weights must be in \[0, "):
+            pb.add_task(ControlRate(), weight=bad, name="bad")
+    assert pb.add_task(ControlRate(), weight=MAX_WEIGHT, name="heavy").weight[0] == MAX_WEIGHT
 
 
 def test_bad_task_declarations_are_clear_errors():
@@ -362,3 +366,5 @@ def test_a_task_that_is_nan_stops_the_robot_with_a_status(backend):
     cmd = Controller(pb, "weighted", backend, options).step(X0, 0.0)
     assert cmd.status == "stopped" and np.all(cmd.u == 0.0)
     assert "Invalid_Number_Detected" in cmd.message
+    # only fatrop, which would spin on it, has the guess checked before it starts
+    assert ("at the initial guess" in cmd.message) == (backend == "fatrop"), cmd.message
