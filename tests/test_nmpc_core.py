@@ -262,12 +262,24 @@ def test_a_weight_mapping_names_dofs_and_the_others_take_its_default_or_zero():
     assert pb.add_task(ControlRate(), weight=MAX_WEIGHT, name="heavy").weight[0] == MAX_WEIGHT
 
 
+def test_a_task_added_without_options_has_weight_one_at_level_zero():
+    e = Problem(X8, 10, 0.5).add_task(CogAlignment())
+    assert e.level == 0 and e.name == "cog"
+    np.testing.assert_array_equal(e.weight, [1.0, 1.0])
+    np.testing.assert_array_equal(e.terminal_weight, [1.0, 1.0])
+
+
 def test_bad_task_declarations_are_clear_errors():
     pb = Problem(X8, 10, 0.5)
     with pytest.raises(ConfigError, match=r"tasks\.control_rate\.weight\.pitch"):
         pb.add_task(ControlRate(), weight={"pitch": 1.0})
     with pytest.raises(ConfigError, match=r"tasks\.cog\.weight: expected 1 or 2 values"):
         pb.add_task(CogAlignment(), weight=[1.0, 2.0, 3.0])
+    with pytest.raises(ConfigError, match=r"^tasks\.cog\.terminal_weight: expected 1 or 2 "):
+        pb.add_task(CogAlignment(), terminal_weight=[1.0, 2.0, 3.0])
+    for level in (-1, 1.0, True):
+        with pytest.raises(ConfigError, match=r"^tasks\.cog\.level: must be an integer >= 0"):
+            pb.add_task(CogAlignment(), level=level)
     for horizon in (0, 2.0, True):
         with pytest.raises(ConfigError, match=r"^horizon: must be an integer >= 1, got "):
             Problem(X8, horizon, 0.5)
