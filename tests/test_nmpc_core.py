@@ -277,6 +277,9 @@ def test_bad_task_declarations_are_clear_errors():
         pb.add_task(CogAlignment(), weight=[1.0, 2.0, 3.0])
     with pytest.raises(ConfigError, match=r"^tasks\.cog\.terminal_weight: expected 1 or 2 "):
         pb.add_task(CogAlignment(), terminal_weight=[1.0, 2.0, 3.0])
+    odd = type("Odd", (ControlRate,), {"time_scaling": "sum"})()
+    with pytest.raises(ConfigError, match=r"^tasks\.odd: time_scaling 'sum' is not 'integral'"):
+        Problem(X8, 10, 0.5, weights_dt=0.1).add_task(odd, name="odd")
     for level in (-1, 1.0, True):
         with pytest.raises(ConfigError, match=r"^tasks\.cog\.level: must be an integer >= 0"):
             pb.add_task(CogAlignment(), level=level)

@@ -39,6 +39,9 @@ def test_each_tasks_stage_and_terminal_cost_is_its_formula_at_every_stage():
     pb.add_task(EndEffectorTracking(ref), weight=2.0, terminal_weight=5.0)
     pb.add_task(StepTravel(), weight=3.0, terminal_weight=11.0)
     pb.add_task(CogVelocity(), weight=0.0)  # no terminal term, and weighted out here
+    # a second task with parameters: the parameters are stage-major, each task its slice
+    ref2 = Lissajous([0.2, -0.1, 0.6], [0.05, 0.1, 0.02], [0.7, 0.4, 0.9])
+    pb.add_task(EndEffectorTracking(ref2), weight=0.5, terminal_weight=0.25, name="second")
     tr = Transcription(pb, pb.entries)
     rng = np.random.default_rng(4)
     X = rng.uniform(-0.5, 0.5, (N + 1, 7)) + np.array([0, 0, 1, 0, 0.3, 0.4, -0.8])
@@ -49,24 +52,33 @@ def test_each_tasks_stage_and_terminal_cost_is_its_formula_at_every_stage():
     x = ca.SX.sym("x", 7)
     ee = ca.Function("ee", [x], [pb.kin.ee_position(x)])  # pinned in test_task_residuals
     targets = ref.sample(t0 + DT * np.arange(N + 1))
+    targets2 = ref2.sample(t0 + DT * np.arange(N + 1))
     U_before = np.vstack([u_prev, U])  # the command before each stage
-    expected = np.zeros((4, N + 1))
+    expected = np.zeros((5, N + 1))
     for k in range(N + 1):
         e = np.asarray(ee(X[k])).ravel() - targets[k]
+        e2 = np.asarray(ee(X[k])).ravel() - targets2[k]
         if k < N:
             expected[:, k] = [
                 0.3 * np.sum((U[k] - U_before[k]) ** 2),
                 2.0 * e @ e,
                 3.0 * (U[k, 0] * DT) ** 2,
                 0.0,
+                0.5 * e2 @ e2,
             ]
         else:  # the terminal terms: the last command, the tracking error, the DoF itself
-            expected[:, k] = [0.7 * U[-1] @ U[-1], 5.0 * e @ e, 11.0 * X[N, 0] ** 2, 0.0]
+            expected[:, k] = [
+                0.7 * U[-1] @ U[-1],
+                5.0 * e @ e,
+                11.0 * X[N, 0] ** 2,
+                0.0,
+                0.25 * e2 @ e2,
+            ]
     np.testing.assert_allclose(costs, expected, rtol=1e-12, atol=1e-14)
     # the stacked residuals are the tasks' own rows (none for a task without a terminal
     # term) and their squared norm is the cost
     r = ca.Function("r", [tr.w, tr.p], [tr.residuals])(tr.pack(X, U, u_prev), p)
-    assert r.numel() == N * (7 + 3 + 1 + 2) + (7 + 3 + 1)
+    assert r.numel() == N * (7 + 3 + 1 + 2 + 3) + (7 + 3 + 1 + 3)
     assert float(ca.sumsqr(r)) == pytest.approx(expected.sum(), rel=1e-12)
 
 
