@@ -1116,6 +1116,13 @@ def test_bounds_as_dict_lists_each_finite_bound_under_its_log_column():
     assert v["u_z"] == [-0.7, 0.7] and v["u_yaw"] == [-0.8, 0.8]  # x8-3dof.toml's own
 
 
+def test_an_option_key_that_is_not_a_string_is_one_line():
+    from aeromanip.nmpc.backends.nlpsol import IpoptBackend
+
+    with pytest.raises(ConfigError, match=r"^solver_options: keys must be strings, got 7$"):
+        IpoptBackend.check_options({"ipopt.tol": 1e-6, 7: 1.0})
+
+
 def test_a_solvers_status_is_its_text_or_casadis_name_for_a_number():
     """``nlpsol._status_text``: IPOPT's text as it is; fatrop's number with CasADi's
     unified name; nothing reported is ``unknown``."""
