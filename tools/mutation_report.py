@@ -27,7 +27,7 @@ Results of ``tools/mutation_subset.py`` join the table (the no-op control names 
 ``--regenerated``: whole functions whose mutants were generated again (a later commit or
 configuration) and checked by ``mutation_subset.py``: the run's records of those functions
 are replaced by these. ``--subset``: a mutant the run did not kill and a subset run did
-counts as "killed by later tests". ``--survivors`` then lists what is left.
+counts as "killed by a subset run". ``--survivors`` then lists what is left.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from pathlib import Path
 
 LINE = re.compile(r"^\s*(?P<name>aeromanip\.\S+?__mutmut_\d+): (?P<status>.+)$")
 KILLED = {"killed", "timeout", "segfault"}  # a test failed, ran too long, or crashed
-LATER = "killed by later tests"  # by a mutation_subset.py run
+LATER = "killed by a subset run"  # mutation_subset.py: later tests, or regenerated mutants
 NOT_COUNTED = {"skipped", "caught by type check", "not checked"}
 
 
@@ -113,13 +113,13 @@ def with_subsets(
 
 
 def table(rows: list[tuple[str, str]]) -> str:
-    """Markdown: per module, mutants, killed (by the run, by later tests), survived,
+    """Markdown: per module, mutants, killed (by the run, by subset runs), survived,
     no tests, kill rate."""
     per: dict[str, Counter] = defaultdict(Counter)
     for name, status in rows:
         per[module_of(name)][status] += 1
     lines = [
-        "| module | mutants | killed by the run | killed by later tests | survived | no tests "
+        "| module | mutants | killed by the run | killed by subset runs | survived | no tests "
         "| kill rate | not checked |",
         "|---|---|---|---|---|---|---|---|",
     ]
