@@ -105,6 +105,9 @@ def test_the_nlp_bounds_follow_the_coasting_vehicle_into_the_margin():
         expected = 0.59 + min(max(coast - 0.59, 0.0), room)
         assert ubw[tr.index_x[k]][0] == pytest.approx(expected, abs=1e-12), k
         np.testing.assert_array_equal(lbw[tr.index_x[k]], pb.bounds.x_lower)
+    # stage 0 stays the measured state, pinned
+    np.testing.assert_array_equal(lbw[tr.index_x[0]], x0)
+    np.testing.assert_array_equal(ubw[tr.index_x[0]], x0)
     assert ubw[tr.index_x[1]][0] > 0.59 + 1e-4  # the margin is used at stage 1...
     assert ubw[tr.index_x[3]][0] == 0.59  # ...and not from 0.3 s on
 
