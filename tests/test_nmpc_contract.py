@@ -1330,6 +1330,30 @@ def test_a_warm_sqp_solve_moves_its_multipliers_a_stage_on_by_default():
     assert shifts == [True, True]
 
 
+def test_a_warm_ipopt_solve_starts_from_the_multipliers_moved_a_stage_on_by_default():
+    """The same for IPOPT: ``lam_g0``/``lam_x0`` reach it as ``lam[shift_g]``/``[shift_w]``."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    backend = Weighted(pb, "ipopt").solvers[0].backend
+    tr, given = backend.tr, []
+
+    class Recording:  # the solver, recording what it is given
+        def __init__(self, solver):
+            self.solver, self.stats = solver, solver.stats
+
+        def __call__(self, **args):
+            given.append(args)
+            return self.solver(**args)
+
+    backend.solver = Recording(backend.solver)
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    first = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
+    backend.solve(first.w, p, tr.lbg, tr.ubg, first.lam_g, first.lam_x)
+    np.testing.assert_array_equal(given[1]["lam_g0"], first.lam_g[tr.shift_g])
+    np.testing.assert_array_equal(given[1]["lam_x0"], first.lam_x[tr.shift_w])
+
+
 @pytest.mark.parametrize("rti", [False, True])
 def test_an_sqp_solve_reports_its_qps_and_its_time(rti):
     """``iterations`` is the number of QPs solved (one in RTI, whose status says so) and
