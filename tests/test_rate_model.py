@@ -407,22 +407,23 @@ def test_widening_is_reported_on_a_dof_bounded_on_one_side():
     assert wide[0] > 0.001 and not np.any(wide[1:])
 
 
-def test_a_state_coming_back_into_its_box_is_widened_at_the_first_stage_alone():
-    """x 2 cm beyond ``x <= 0.5``, already moving back at 0.1 m/s: the nearest the next
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_a_state_coming_back_into_its_box_is_widened_at_the_first_stage_alone(side):
+    """x 2 cm beyond ``|x| <= 0.5``, already moving back at 0.1 m/s: the nearest the next
     stage can be (hand computation: the command cut by ``accel dt`` to -0.15, the rate
     lagging with ``tau = 0.3``) is still out by 9.25 mm; from stage 2 on the box holds."""
     pb = boxed_problem()
     tr = Weighted(pb, "ipopt").transcription
-    x0, v = X0.copy(), np.array([-0.1, 0, 0, 0, 0, 0, 0.0])
-    x0[0] = 0.52
+    x0, v = X0.copy(), side * np.array([-0.1, 0, 0, 0, 0, 0, 0.0])
+    x0[0] = 0.52 * side
     a, u = np.exp(-0.1 / 0.3), -0.1 - ACCEL[0] * 0.1
     x1 = 0.52 + 0.1 * u + 0.3 * (1 - a) * (-0.1 - u)
     p = tr.parameters(x0, v, pb.stage_params(0.0), v)
     with warnings.catch_warnings():  # inf - inf on the unbounded sides: no warning
         warnings.simplefilter("error")
         assert tr.box_widening(p)[0] == pytest.approx(x1 - 0.5, rel=1e-9)
-    _, ubw = tr.variable_bounds(p)
-    assert np.all(ubw[tr.index_x[2:, 0]] == 0.5)
+    lbw, ubw = tr.variable_bounds(p)
+    assert np.all((ubw if side > 0 else -lbw)[tr.index_x[2:, 0]] == 0.5)
 
 
 def test_a_failed_step_names_each_state_outside_its_bounds_and_only_those():
