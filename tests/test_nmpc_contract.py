@@ -1352,6 +1352,9 @@ def test_a_warm_ipopt_solve_starts_from_the_multipliers_moved_a_stage_on_by_defa
     backend.solve(first.w, p, tr.lbg, tr.ubg, first.lam_g, first.lam_x)
     np.testing.assert_array_equal(given[1]["lam_g0"], first.lam_g[tr.shift_g])
     np.testing.assert_array_equal(given[1]["lam_x0"], first.lam_x[tr.shift_w])
+    backend.solve(first.w, p, tr.lbg, tr.ubg, first.lam_g, first.lam_x, shift=False)
+    np.testing.assert_array_equal(given[2]["lam_g0"], first.lam_g)  # this step's: as given
+    np.testing.assert_array_equal(given[2]["lam_x0"], first.lam_x)
 
 
 @pytest.mark.parametrize("rti", [False, True])
