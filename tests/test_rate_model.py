@@ -18,7 +18,7 @@ from aeromanip.nmpc.controller import Controller
 from aeromanip.nmpc.model import MAX_TAU, RateModel
 from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.strategies import Weighted
-from aeromanip.references import Constant
+from aeromanip.references import Constant, Lissajous
 from aeromanip.robot.loader import load_robot
 from aeromanip.sim.kinematic import KinematicSimulator
 from aeromanip.tasks import ControlRate, EndEffectorTracking
@@ -189,6 +189,28 @@ def test_a_compensated_latency_plans_from_the_state_reached_when_the_command_lan
         held = cmd.u
 
 
+def test_the_plan_starts_from_the_measured_rates_and_samples_the_reference_when_it_lands():
+    """What a step hands the solver: the stage-0 state with the measured (lagged) rates,
+    and the reference at ``t + latency + k dt`` (a moving one: a Lissajous figure)."""
+    ref = Lissajous([0.4, 0.3, 0.5], [0.1, 0.2, 0.05], [0.5, 0.3, 0.2])
+    pb = Problem(X8, 6, 0.1, Bounds.from_robot(X8), response_tau=TAU)
+    pb.add_task(EndEffectorTracking(ref), weight=10.0)
+    ctrl = Controller(pb, "weighted", "ipopt", latency_s=0.0)
+    given = []
+    solve = ctrl.strategy.solve
+    ctrl.strategy.solve = lambda p, gs: given.append(p) or solve(p, gs)
+    rates = np.array([0.1, -0.2, 0.05, 0.3, 0.2, -0.1, 0.4])
+    ctrl.step(X0, 1.7, rates)
+    nx, lagged = 7, TAU > 0
+    np.testing.assert_array_equal(given[0][2 * nx : 2 * nx + lagged.sum()], rates[lagged])
+    late = Controller(pb, "weighted", "ipopt", latency_s=0.04)
+    late.strategy.solve = lambda p, gs: given.append(p) or solve(p, gs)
+    late.step(X0, 1.7)
+    nz = 2 * nx + lagged.sum()
+    times = 1.74 + 0.1 * np.arange(7)
+    np.testing.assert_allclose(given[1][nz:].reshape(7, 3), ref.sample(times), rtol=1e-14)
+
+
 def test_latency_must_be_shorter_than_the_period():
     with pytest.raises(Exception, match="latency"):
         Controller(problem(), "weighted", "ipopt", latency_s=0.1)
@@ -345,6 +367,9 @@ def test_discarded_steps_age_the_flying_plan_until_it_runs_out():
     ctrl.step(X0 + 0.03, 3 * pb.dt)
     ctrl.discard()  # the plan had no fourth command: the third stays in flight
     np.testing.assert_array_equal(ctrl.u_prev, first.plan_u[2])
+    X, U = ctrl.strategy.transcription.unpack(ctrl.initial_guesses(X0)[0])
+    np.testing.assert_array_equal(X, np.repeat(X0[None], 4, axis=0))  # no plan: rest
+    np.testing.assert_array_equal(U, np.zeros((3, 7)))
     ctrl.time_budget_s = 1e-12  # every solve now fails
     assert ctrl.step(X0, 4 * pb.dt).status == "stopped"
 

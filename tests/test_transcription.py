@@ -91,3 +91,21 @@ def test_a_row_only_the_first_command_moves_is_movable():
     kind, stage = np.asarray(tr.g_kind), np.asarray(tr.g_stage)
     first = np.flatnonzero((kind == "accel") & (stage == 0))
     assert len(first) == 7 and tr.g_movable[first].all()
+
+
+def test_a_packed_plan_starts_where_the_nlp_pins_its_start():
+    """With rate responses: ``pack(X, U, u_prev, rates)`` puts at stage 0 the ``z0`` that
+    ``parameters`` (and so ``variable_bounds``) pins: the measured rates, not ``u_prev``."""
+    tau = np.array([0.3, 0.25, 0.2, 0.08, 0.0, 0.0, 0.01])
+    pb = Problem(X8, N, DT, Bounds.from_robot(X8), response_tau=tau)
+    pb.add_task(EndEffectorTracking(Lissajous([0.4, 0.3, 0.5], [0.1] * 3, [0.5] * 3)))
+    tr = Transcription(pb, pb.entries)
+    rng = np.random.default_rng(7)
+    X, U = rng.normal(0, 0.3, (N + 1, 7)), rng.normal(0, 0.3, (N, 7))
+    u_prev, rates = rng.normal(0, 0.3, 7), rng.normal(0, 0.3, 7)
+    w = tr.pack(X, U, u_prev, rates)
+    p = tr.parameters(X[0], u_prev, pb.stage_params(0.0), rates)
+    lbw, ubw = tr.variable_bounds(p)
+    np.testing.assert_array_equal(w[: tr.nz], lbw[: tr.nz])
+    np.testing.assert_array_equal(w[: tr.nz], ubw[: tr.nz])
+    np.testing.assert_array_equal(w[2 * 7 : tr.nz], rates[tau > 0])

@@ -135,7 +135,7 @@ class Controller:
         """A plan of the last flown solve moved on to now (last command repeated),
         starting from ``x0``: one step, or more after fallbacks and discards (the plan's
         age: it has flown ``age`` steps more since)."""
-        steps = 1 + (self._plan[2] if self._plan is not None else 0)
+        steps = 1 + self._plan[2]  # a solution is kept only while its plan flies
         X = np.vstack([X[steps:], np.repeat(X[-1:], steps, axis=0)])
         U = np.vstack([U[steps:], np.repeat(U[-1:], steps, axis=0)])
         X[0] = x0
@@ -218,6 +218,8 @@ class Controller:
             Xp, Up, age = plan
             self._plan = (Xp, Up, age + 1)
             self.u_prev = Up[age + 1].copy()
+        else:  # no plan flies: none of its solutions is a guess either
+            self._level_w = []
 
     def _widened(self, p: np.ndarray) -> str:
         """Which DoFs' state box this solve widened to keep a plan feasible, and by how
