@@ -1123,6 +1123,38 @@ def test_an_option_key_that_is_not_a_string_is_one_line():
         IpoptBackend.check_options({"ipopt.tol": 1e-6, 7: 1.0})
 
 
+@pytest.mark.parametrize(
+    ("raised", "status"),
+    [
+        ("evaluation failed\nat nmpc_ipopt: NaN in f", "at nmpc_ipopt: NaN in f"),
+        ("", "solver error"),
+    ],
+)
+def test_a_solver_that_raises_is_a_failed_solve_with_its_last_line(raised, status):
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    backend = Weighted(pb, "ipopt").solvers[0].backend
+    tr = backend.tr
+
+    class Raising:
+        def __call__(self, **args):
+            raise RuntimeError(raised)
+
+        def stats(self):
+            return {}
+
+    backend.solver = Raising()
+    res = backend.solve(
+        tr.pack(*rest(pb), np.zeros(7)),
+        tr.parameters(X0, np.zeros(7), pb.stage_params(0.0)),
+        tr.lbg,
+        tr.ubg,
+    )
+    assert (res.success, res.status) == (False, status)
+    assert np.isnan(res.w).all() and np.isnan(res.f)
+
+
 def test_a_solvers_status_is_its_text_or_casadis_name_for_a_number():
     """``nlpsol._status_text``: IPOPT's text as it is; fatrop's number with CasADi's
     unified name; nothing reported is ``unknown``."""
