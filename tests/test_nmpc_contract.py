@@ -1155,6 +1155,39 @@ def test_a_solver_that_raises_is_a_failed_solve_with_its_last_line(raised, statu
     assert np.isnan(res.w).all() and np.isnan(res.f)
 
 
+@pytest.mark.parametrize("interrupted", [False, True])
+def test_an_ipopt_solve_cut_by_ctrl_c_raises_it_again_and_a_solve_reports_its_time(
+    interrupted,
+):
+    """The solver's stats say it was interrupted: the solve raises ``KeyboardInterrupt``
+    (Python's own SIGINT handler, main thread); otherwise it reports its wall time."""
+    from aeromanip.nmpc.backends.nlpsol import INTERRUPTED_STATUS
+
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    backend = Weighted(pb, "ipopt").solvers[0].backend
+    tr, solver = backend.tr, backend.solver
+    status = INTERRUPTED_STATUS if interrupted else "Solve_Succeeded"
+
+    class Stopped:
+        def __call__(self, **args):
+            return solver(**args)
+
+        def stats(self):
+            return {**solver.stats(), "return_status": status}
+
+    backend.solver = Stopped()
+    args = (tr.pack(*rest(pb), np.zeros(7)), tr.parameters(X0, np.zeros(7), pb.stage_params(0.0)))
+    t0 = time.perf_counter()
+    if interrupted:
+        with pytest.raises(KeyboardInterrupt):
+            backend.solve(*args, tr.lbg, tr.ubg)
+    else:
+        res = backend.solve(*args, tr.lbg, tr.ubg)
+        assert res.success and 0 < res.solve_time_s <= time.perf_counter() - t0
+
+
 def test_a_solvers_status_is_its_text_or_casadis_name_for_a_number():
     """``nlpsol._status_text``: IPOPT's text as it is; fatrop's number with CasADi's
     unified name; nothing reported is ``unknown``."""
