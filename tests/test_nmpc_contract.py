@@ -1157,12 +1157,15 @@ def test_a_solver_that_raises_is_a_failed_solve_with_its_last_line(raised, statu
 
 @pytest.mark.parametrize("interrupted", [False, True])
 def test_an_ipopt_solve_cut_by_ctrl_c_raises_it_again_and_a_solve_reports_its_time(
-    interrupted,
+    interrupted, monkeypatch
 ):
     """The solver's stats say it was interrupted: the solve raises ``KeyboardInterrupt``
     (Python's own SIGINT handler, main thread); otherwise it reports its wall time."""
+    from aeromanip.nmpc.backends import nlpsol
     from aeromanip.nmpc.backends.nlpsol import INTERRUPTED_STATUS
 
+    # Python's own handler, whatever the test runner installed (xdist workers do)
+    monkeypatch.setattr(nlpsol.signal, "getsignal", lambda _: nlpsol.signal.default_int_handler)
     x8 = load_robot("x8-3dof")
     pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
     pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
