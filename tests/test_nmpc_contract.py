@@ -1123,6 +1123,14 @@ def test_an_option_key_that_is_not_a_string_is_one_line():
         IpoptBackend.check_options({"ipopt.tol": 1e-6, 7: 1.0})
 
 
+def _tracking_ipopt():
+    """A 3-step tracking problem and its weighted IPOPT backend."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    return pb, Weighted(pb, "ipopt").solvers[0].backend
+
+
 @pytest.mark.parametrize(
     ("raised", "status"),
     [
@@ -1131,10 +1139,7 @@ def test_an_option_key_that_is_not_a_string_is_one_line():
     ],
 )
 def test_a_solver_that_raises_is_a_failed_solve_with_its_last_line(raised, status):
-    x8 = load_robot("x8-3dof")
-    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
-    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
-    backend = Weighted(pb, "ipopt").solvers[0].backend
+    pb, backend = _tracking_ipopt()
     tr = backend.tr
 
     class Raising:
@@ -1166,10 +1171,7 @@ def test_an_ipopt_solve_cut_by_ctrl_c_raises_it_again_and_a_solve_reports_its_ti
 
     # Python's own handler, whatever the test runner installed (xdist workers do)
     monkeypatch.setattr(nlpsol.signal, "getsignal", lambda _: nlpsol.signal.default_int_handler)
-    x8 = load_robot("x8-3dof")
-    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
-    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
-    backend = Weighted(pb, "ipopt").solvers[0].backend
+    pb, backend = _tracking_ipopt()
     tr, solver = backend.tr, backend.solver
     status = INTERRUPTED_STATUS if interrupted else "Solve_Succeeded"
 
@@ -1400,10 +1402,7 @@ def test_a_warm_sqp_solve_moves_its_multipliers_a_stage_on_by_default():
 
 def test_a_warm_ipopt_solve_starts_from_the_multipliers_moved_a_stage_on_by_default():
     """The same for IPOPT: ``lam_g0``/``lam_x0`` reach it as ``lam[shift_g]``/``[shift_w]``."""
-    x8 = load_robot("x8-3dof")
-    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
-    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
-    backend = Weighted(pb, "ipopt").solvers[0].backend
+    pb, backend = _tracking_ipopt()
     tr, given = backend.tr, []
 
     class Recording:  # the solver, recording what it is given
