@@ -566,3 +566,30 @@ def test_a_row_whose_slack_is_the_screen_width_is_left_out_at_first(monkeypatch,
     res = dense.solve(*qp)
     assert res.ok and res.d[0] == pytest.approx(0.25, abs=1e-12)
     assert [r.tolist() for r, _ in calls] == [[], [0]]
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("fault", ["shifted", "nan"])
+def test_an_answer_the_solver_calls_optimal_but_that_crosses_its_bounds_is_named_so(
+    solver, fault
+):
+    """A solver can report success on ill-conditioned data with an answer across its
+    bounds; the QP layer refuses it and says both: the solver's own status and how far
+    the answer is out (here a 1e-3 shift added to the solver's true optimum, so at
+    ``d >= 1`` the answer is out by exactly 1e-3), or that it is not finite."""
+    qp = DenseQp(2, 1, solver)
+    args = (np.eye(2), np.zeros(2), np.array([[1.0, 0.0]]), np.ones(1), np.full(1, np.inf),
+            -5 * np.ones(2), 5 * np.ones(2))  # fmt: skip
+    assert qp.solve(*args).ok  # d = (1, 0): the row at its lower bound
+    for q in qp._solvers.values():
+        run = q.run
+
+        def faulty(q=q, run=run):
+            run()
+            q.out["x"][:] = q.out["x"] - 1e-3 if fault == "shifted" else np.nan
+
+        q.run = faulty
+    res = qp.solve(*args)
+    status = "optimal (DAQP exit flag 1)" if solver == "daqp" else "Successful return."
+    out = "crosses its bounds by 1.0e-03" if fault == "shifted" else "is not finite"
+    assert not res.ok and res.status == f"{status}, but the answer {out}"

@@ -31,6 +31,7 @@ SOLVERS: dict[str, dict[str, Any]] = {
 }
 #: DAQP's exit flags (its ``types.h``), which CasADi reports as the bare number
 DAQP_EXIT_FLAGS = {
+    1: "optimal",
     2: "soft optimal",
     -1: "infeasible",
     -2: "cycling",
@@ -47,6 +48,18 @@ def status_text(solver: str, status: Any) -> str:
     if solver == "daqp" and status in DAQP_EXIT_FLAGS:
         return f"{DAQP_EXIT_FLAGS[status]} (DAQP exit flag {status})"
     return str(status)
+
+
+def _failure(solver: str, stats: dict[str, Any], d: np.ndarray, excess: float) -> str:
+    """Why a QP answer is not taken: the solver's status and, if the solver reported
+    success, what is wrong with its answer (not finite, or across its bounds by more
+    than ``CROSS_TOL``: ill-conditioned data)."""
+    status = status_text(solver, stats.get("return_status", "?"))
+    if not stats.get("success"):
+        return status
+    if not np.isfinite(d).all():
+        return f"{status}, but the answer is not finite"
+    return f"{status}, but the answer crosses its bounds by {excess:.1e}"
 
 
 @dataclass
@@ -213,12 +226,12 @@ class DenseQp:
         # a finite, feasible solution means success: cheaper than asking for the stats
         tol = CROSS_TOL * (1.0 + np.abs(d).max(initial=0.0))
         Ad = Am[:r] @ d
-        ok = bool(
-            np.isfinite(d).all()
-            and (Ad >= lba[rows] - tol).all()
-            and (Ad <= uba[rows] + tol).all()
-            and (d >= lbx - tol).all()
-            and (d <= ubx + tol).all()
+        excess = max(
+            (lba[rows] - Ad).max(initial=0.0),
+            (Ad - uba[rows]).max(initial=0.0),
+            (lbx - d).max(initial=0.0),
+            (d - ubx).max(initial=0.0),
         )
-        status = "" if ok else status_text(self.solver, q.buf.stats().get("return_status", "?"))
+        ok = bool(np.isfinite(d).all() and excess <= tol)
+        status = "" if ok else _failure(self.solver, q.buf.stats(), d, excess)
         return d, q.out["lam_a"].copy(), q.out["lam_x"].copy(), status
