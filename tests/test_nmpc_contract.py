@@ -1135,29 +1135,37 @@ def _tracking_ipopt():
     ("raised", "status"),
     [
         ("evaluation failed\nat nmpc_ipopt: NaN in f", "at nmpc_ipopt: NaN in f"),
+        (
+            "Error in Function::call\nevaluation failed\nat nmpc_ipopt: NaN in f",
+            "at nmpc_ipopt: NaN in f",
+        ),
         ("", "solver error"),
     ],
 )
 def test_a_solver_that_raises_is_a_failed_solve_with_its_last_line(raised, status):
+    """Also with the iterations the solver's stats count and the solve's wall time."""
     pb, backend = _tracking_ipopt()
     tr = backend.tr
 
     class Raising:
         def __call__(self, **args):
+            time.sleep(0.002)
             raise RuntimeError(raised)
 
         def stats(self):
-            return {}
+            return {"iter_count": 4}
 
     backend.solver = Raising()
+    t0 = time.perf_counter()
     res = backend.solve(
         tr.pack(*rest(pb), np.zeros(7)),
         tr.parameters(X0, np.zeros(7), pb.stage_params(0.0)),
         tr.lbg,
         tr.ubg,
     )
-    assert (res.success, res.status) == (False, status)
+    assert (res.success, res.status, res.iterations) == (False, status, 4)
     assert np.isnan(res.w).all() and np.isnan(res.f)
+    assert 0.002 <= res.solve_time_s <= time.perf_counter() - t0
 
 
 @pytest.mark.parametrize("interrupted", [False, True])
@@ -1191,6 +1199,13 @@ def test_an_ipopt_solve_cut_by_ctrl_c_raises_it_again_and_a_solve_reports_its_ti
     else:
         res = backend.solve(*args, tr.lbg, tr.ubg)
         assert res.success and 0 < res.solve_time_s <= time.perf_counter() - t0
+
+
+def test_a_solves_iterations_are_the_solvers_count_or_0_where_it_reports_none():
+    from aeromanip.nmpc.backends.nlpsol import _iterations
+
+    assert _iterations({"iter_count": 7}) == 7
+    assert _iterations({}) == 0
 
 
 def test_a_solvers_status_is_its_text_or_casadis_name_for_a_number():

@@ -133,7 +133,7 @@ class NlpBackend(Backend):
                 np.nan,
                 False,
                 error,
-                int(stats.get("iter_count", 0)),
+                _iterations(stats),
                 elapsed,
             )
         w = np.asarray(out["x"]).ravel()
@@ -145,9 +145,14 @@ class NlpBackend(Backend):
             f=float(out["f"]),
             success=ok,
             status=_status_text(stats),
-            iterations=int(stats.get("iter_count", -1)),
+            iterations=_iterations(stats),
             solve_time_s=elapsed,
         )
+
+
+def _iterations(stats: Mapping[str, Any]) -> int:
+    """The iterations a solver's stats count (0 where it reports none)."""
+    return int(stats.get("iter_count", 0))
 
 
 def _status_text(stats: Mapping[str, Any]) -> str:
