@@ -570,9 +570,7 @@ def test_a_row_whose_slack_is_the_screen_width_is_left_out_at_first(monkeypatch,
 
 @pytest.mark.parametrize("solver", SOLVERS)
 @pytest.mark.parametrize("fault", ["shifted", "nan"])
-def test_an_answer_the_solver_calls_optimal_but_that_crosses_its_bounds_is_named_so(
-    solver, fault
-):
+def test_an_answer_the_solver_calls_optimal_but_that_crosses_its_bounds_is_named_so(solver, fault):
     """A solver can report success on ill-conditioned data with an answer across its
     bounds; the QP layer refuses it and says both: the solver's own status and how far
     the answer is out (here a 1e-3 shift added to the solver's true optimum, so at

@@ -60,8 +60,11 @@ def _control(when: str, pytest_args: list[str], args: argparse.Namespace) -> boo
     code = run_one(CONTROL, pytest_args, args.timeout, args.logs)
     print(f"{code:4d} {time.time() - t0:6.1f}s control ({when})", flush=True)
     if code != 0:
-        print(f"the control failed {when} (exit {code}): the unmutated code fails these tests"
-              f" here; see {args.logs or 'a run with --logs'}", file=sys.stderr)
+        print(
+            f"the control failed {when} (exit {code}): the unmutated code fails these tests"
+            f" here; see {args.logs or 'a run with --logs'}",
+            file=sys.stderr,
+        )
     return code == 0
 
 
