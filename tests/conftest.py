@@ -20,6 +20,12 @@ from pathlib import Path
 
 import pytest
 
+from aeromanip.nmpc.constraints import Bounds
+from aeromanip.nmpc.problem import Problem
+from aeromanip.references import Constant
+from aeromanip.robot.loader import load_robot
+from aeromanip.tasks import ControlRate, EndEffectorTracking
+
 os.environ.setdefault("AEROMANIP_CODEGEN", "0")
 
 LOCK_DIR_KEY = "aeromanip_lock_dir"
@@ -86,3 +92,13 @@ def pytest_runtest_protocol(item, nextitem):
 def _codegen_for_marked_tests(request, monkeypatch):
     if request.node.get_closest_marker("codegen"):
         monkeypatch.setenv("AEROMANIP_CODEGEN", "1")
+
+
+@pytest.fixture(scope="module")
+def small_problem():
+    """A 3-step x8-3dof problem: the end effector to a constant point, a rate regulariser."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    return pb
