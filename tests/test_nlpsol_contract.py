@@ -10,6 +10,7 @@ import signal
 import threading
 import time
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -177,3 +178,18 @@ def test_a_warm_ipopt_solve_starts_from_the_multipliers_moved_a_stage_on_by_defa
     backend.solve(first.w, p, tr.lbg, tr.ubg, first.lam_g, first.lam_x, shift=False)
     np.testing.assert_array_equal(given[2]["lam_g0"], first.lam_g)  # this step's: as given
     np.testing.assert_array_equal(given[2]["lam_x0"], first.lam_x)
+
+
+def test_a_successful_solve_reports_the_nlps_cost_and_rows_at_its_answer():
+    """``f`` is the NLP's objective at the answer ``w`` and the answer keeps its rows and
+    bounds (evaluated here with the transcription's own expressions)."""
+    pb, backend = _tracking_ipopt()
+    tr = backend.tr
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    res = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
+    f, g = (np.asarray(v).ravel() for v in ca.Function("fg", [tr.w, tr.p], [tr.f, tr.g])(res.w, p))
+    assert res.success and res.status == "Solve_Succeeded"
+    assert res.f == pytest.approx(float(f[0]), rel=1e-12) and res.f > 0.0
+    assert np.all(g >= tr.lbg - 1e-8) and np.all(g <= tr.ubg + 1e-8)
+    lbw, ubw = tr.variable_bounds(p)
+    assert np.all(res.w >= lbw - 1e-8) and np.all(res.w <= ubw + 1e-8)
