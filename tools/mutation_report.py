@@ -28,11 +28,19 @@ Results of ``tools/mutation_subset.py`` join the table (the no-op control names 
 configuration) and checked by ``mutation_subset.py``: the run's records of those functions
 are replaced by these. ``--subset``: a mutant the run did not kill and a subset run did
 counts as "killed by a subset run". ``--survivors`` then lists what is left.
+
+``--save FILE.json.gz`` writes the verdicts the table counts (mutant name -> status);
+``--verdicts FILE.json.gz`` makes the table (or ``--survivors``) from such a file alone,
+without mutmut's directories: ``docs/mutation/nmpc-verdicts.json.gz`` holds the
+``nmpc/`` verdicts of docs/testing.md (stop 26)::
+
+    python tools/mutation_report.py --verdicts docs/mutation/nmpc-verdicts.json.gz
 """
 
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import re
 import subprocess
@@ -153,9 +161,14 @@ def main() -> int:
     p.add_argument("--regenerated", type=Path, nargs="*", default=[], metavar="JSON")
     p.add_argument("--subset", type=Path, nargs="*", default=[], metavar="JSON")
     p.add_argument("--override", type=Path, metavar="JSON", help="name -> status, by hand")
+    p.add_argument("--save", type=Path, metavar="FILE", help="write the verdicts (gzip JSON)")
+    p.add_argument("--verdicts", type=Path, metavar="FILE", help="read them instead of a run")
     args = p.parse_args()
     if args.remaining and args.phase_b is None:
         p.error("--remaining needs --phase-b DIR")
+    if args.verdicts is not None:
+        saved = json.loads(gzip.decompress(args.verdicts.read_bytes()))
+        return _report(sorted(saved.items()), args)
     rows = results()
     if args.phase_b is not None:
         phase_b = results(args.phase_b)
@@ -167,6 +180,14 @@ def main() -> int:
             return 0
         rows = combined(rows, phase_b)
     rows = with_subsets(rows, args.regenerated, args.subset, args.override)
+    if args.save is not None:
+        data = json.dumps(dict(rows), indent=0, sort_keys=True).encode()
+        args.save.write_bytes(gzip.compress(data, mtime=0))
+    return _report(rows, args)
+
+
+def _report(rows: list[tuple[str, str]], args: argparse.Namespace) -> int:
+    """Print the table, or with ``--survivors`` the mutants not killed."""
     if args.survivors:
         for name, status in sorted(rows):
             if status not in KILLED | NOT_COUNTED | {LATER}:
