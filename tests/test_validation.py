@@ -489,19 +489,10 @@ def test_plot_of_a_spoilt_run_is_one_line_exit_2_and_draws_nothing(
 
 
 @pytest.fixture(scope="module")
-def controller():
-    from aeromanip.nmpc.constraints import Bounds
+def controller(small_problem):
     from aeromanip.nmpc.controller import Controller
-    from aeromanip.nmpc.problem import Problem
-    from aeromanip.references import Constant
-    from aeromanip.robot.loader import load_robot
-    from aeromanip.tasks import ControlRate, EndEffectorTracking
 
-    x8 = load_robot("x8-3dof")
-    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
-    pb.add_task(EndEffectorTracking(Constant([0.5, 0.3, 0.6])), weight=10.0)
-    pb.add_task(ControlRate(), weight=0.1, level=None)
-    return Controller(pb, "weighted", "ipopt")
+    return Controller(small_problem, "weighted", "ipopt")
 
 
 X0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
