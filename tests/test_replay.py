@@ -208,3 +208,26 @@ def test_parse_size():
             parse_size(bad)
     with pytest.raises(AeromanipError, match=r"got \(641, 480\)"):
         replay("/nonexistent", size=(641, 480))  # the Python API checks it too
+
+
+def test_a_frame_of_the_wrong_size_is_refused_and_no_file_appears(tmp_path):
+    from aeromanip.viz.video import FrameWriter
+
+    message = r"^FrameWriter\.write: a frame of shape \(4, 6, 3\), expected \(8, 6, 3\) "
+    writer = FrameWriter(tmp_path / "a.png", 6, 8, 10.0)
+    with pytest.raises(AeromanipError, match=message), writer as w:
+        w.write(np.zeros((4, 6, 3), dtype=np.uint8))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_rendering_after_close_is_an_error_of_ours():
+    from aeromanip.viz.render import Offscreen
+
+    model = gl.import_mujoco().MjModel.from_xml_string(
+        "<mujoco><worldbody><geom size='0.1'/></worldbody></mujoco>"
+    )
+    view = Offscreen(model, 16, 12, 0, "fast")
+    view.close()
+    view.close()  # idempotent
+    with pytest.raises(AeromanipError, match=r"^Offscreen\.render: the renderer is closed$"):
+        view.render()

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from aeromanip.bench.timing import time_call
+from aeromanip.errors import AeromanipError
 from aeromanip.robot.kinematics import Kinematics
 from aeromanip.robot.loader import load_robot
 
@@ -34,7 +35,7 @@ def bench_kinematics(robot: str = "x8-3dof", repeat: int = 5000, batch: int = 10
     evaluate()
     expected = np.concatenate([np.asarray(v.nonzeros()) for v in f(x)])
     if not np.allclose(np.concatenate(outs), expected, rtol=0, atol=1e-14):
-        raise RuntimeError("buffer evaluation disagrees with the Function call")
+        raise AeromanipError("bench: the buffer evaluation disagrees with the Function call")
     buffered = time_call(evaluate, repeat * 4)
 
     fmap = f.map(batch)

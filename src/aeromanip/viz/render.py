@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from aeromanip.errors import ConfigError
+from aeromanip.errors import AeromanipError, ConfigError
 from aeromanip.viz.errors import require
 from aeromanip.viz.frames import quat_from_rpy
 from aeromanip.viz.gl import import_mujoco, make_context
@@ -72,7 +72,7 @@ class Offscreen:
     def render(self) -> np.ndarray:
         """The scene as an RGB image (height, width, 3), top row first (a new array)."""
         if self._ctx is None:
-            raise RuntimeError("render after close")
+            raise AeromanipError("Offscreen.render: the renderer is closed")
         self._gl.make_current()
         mujoco.mjr_render(self._rect, self.scene, self._ctx)
         mujoco.mjr_readPixels(self._buf, None, self._rect, self._ctx)

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from aeromanip.errors import ConfigError
+from aeromanip.errors import AeromanipError, ConfigError
 from aeromanip.viz.errors import require
 
 KINDS = {".mp4": "mp4", ".gif": "gif", ".png": "png"}
@@ -102,7 +102,10 @@ class FrameWriter:
     def write(self, frame: np.ndarray) -> None:
         """Append one frame (a PNG keeps only the first)."""
         if frame.shape != (self.size[1], self.size[0], 3):
-            raise ValueError(f"frame of shape {frame.shape}, expected {self.size[::-1]} x 3")
+            raise AeromanipError(
+                f"FrameWriter.write: a frame of shape {frame.shape}, expected "
+                f"{(self.size[1], self.size[0], 3)} (height, width, 3)"
+            )
         if self.kind == "mp4":
             self._gen.send(np.ascontiguousarray(frame))
         elif self.kind == "gif":
