@@ -362,18 +362,39 @@ def test_the_line_search_takes_the_first_step_with_sufficient_decrease_of_the_me
 
 
 def test_the_line_search_takes_a_corrected_full_step_only_if_the_correction_solved():
-    """The full step rejected, a model's second-order correction is tried as a full step
-    (and returned with it); a correction whose QP failed is not used."""
+    """The full step rejected with its rows' violation raised, a model's second-order
+    correction is tried as a full step (and returned with it); a correction whose QP
+    failed is not used."""
     good = QpResult(np.array([1.9]), np.zeros(1), np.zeros(1), True, "")
-    table = {1.0: (50.0, 0.0), 0.95: (1.0, 0.0), 0.5: (2.0, 0.0)}  # 1.9 = 0.95 d
+    table = {1.0: (40.0, 1.0), 0.95: (1.0, 0.0), 0.5: (2.0, 0.0)}  # 1.9 = 0.95 d
     assert search(MeritLine(table, soc=good)) == (1.0, good)
     failed = QpResult(np.array([1.9]), np.zeros(1), np.zeros(1), False, "x")
     assert search(MeritLine(table, soc=failed)) == (0.5, None)
     # judged as a full step: threshold 5 + 1e-4 x 1 x (-6)
-    near = {1.0: (50.0, 0.0), 0.95: (5.0 - 8e-4, 0.0), 0.5: (2.0, 0.0)}
+    near = {1.0: (40.0, 1.0), 0.95: (5.0 - 8e-4, 0.0), 0.5: (2.0, 0.0)}
     assert search(MeritLine(near, soc=good)) == (1.0, good)
-    above = {1.0: (50.0, 0.0), 0.95: (5.0 - 6e-4 + 1e-9, 0.0), 0.5: (2.0, 0.0)}
+    above = {1.0: (40.0, 1.0), 0.95: (5.0 - 6e-4 + 1e-9, 0.0), 0.5: (2.0, 0.0)}
     assert search(MeritLine(above, soc=good)) == (0.5, None)
+
+
+def test_the_line_search_corrects_only_a_full_step_that_raised_the_violation():
+    """IPOPT's rule: a full step rejected for its cost alone (the rows' violation not
+    above the current one) is not corrected, only shortened; one whose violation rose
+    (by any amount) is. The corrections tried are counted."""
+    good = QpResult(np.array([1.9]), np.zeros(1), np.zeros(1), True, "")
+
+    def tried(viol0, viol_full):
+        model = MeritLine({1.0: (50.0, viol_full), 0.95: (0.0, 0.0), 0.5: (0.0, 0.0)})
+        calls = []
+        model.correction = lambda v, d, lin, p: calls.append(d) or good
+        alpha, soc = search(model, viol0=viol0)
+        return len(calls), alpha, soc
+
+    assert tried(0.0, 0.0) == (0, 0.5, None)  # the cost alone rejected it
+    assert tried(0.5, 0.5) == (0, 0.5, None)  # violation as before: not raised
+    assert tried(0.5, 0.4) == (0, 0.5, None)  # lowered
+    assert tried(0.5, 0.5 + 1e-12) == (1, 1.0, good)  # raised, however little
+    assert tried(0.0, 1e-12) == (1, 1.0, good)
 
 
 def test_the_damping_grows_tenfold_after_a_short_step_and_fades_after_full_ones():
