@@ -102,13 +102,28 @@ def test_the_sparse_model_takes_the_multipliers_only_when_both_come(sparse_model
     assert np.array_equal(lam_c, lam_g[tr.shift_g]) and np.array_equal(lam_v, lam_x[tr.shift_w])
 
 
-@pytest.mark.parametrize("rti", [False, True])
+def test_a_converged_sqps_qp_residuals_are_a_hundredth_of_its_tolerance_within_limits():
+    """HPIPM's residual tolerance: 1e-2 times a converged SQP's ``tol``, no looser than
+    1e-8 and no tighter than 1e-10; an RTI's is 1e-8 whatever its ``tol``."""
+    from aeromanip.nmpc.backends.multiple_shooting import qp_tolerance
+
+    assert qp_tolerance("sqp", 1e-6) == pytest.approx(1e-8)  # the default tol
+    assert qp_tolerance("sqp", 1e-7) == pytest.approx(1e-9)
+    assert qp_tolerance("sqp", 1e-9) == 1e-10  # the backend matrix test's
+    assert qp_tolerance("sqp", 0.0) == 1e-10  # only the acceptable level ends a solve
+    assert qp_tolerance("sqp", 1e-3) == 1e-8
+    assert qp_tolerance("rti", 1e-3) == qp_tolerance("rti", 1e-9) == 1e-8
+
+
+@pytest.mark.parametrize(("rti", "sqp_tol", "qp_tol"), [(False, 1e-6, 1e-8),
+                         (False, 1e-9, 1e-10), (True, 1e-9, 1e-8)])  # fmt: skip
 def test_the_sparse_models_hpipm_has_its_limits_and_prints_nothing(
-    monkeypatch, capfd, small_problem, rti
+    monkeypatch, capfd, small_problem, rti, sqp_tol, qp_tol
 ):
     """The HPIPM solver a sparse model builds gets the limits of its kind (a converged
-    SQP's or an RTI's, ``HPIPM_LIMITS``), the user's HPIPM options added key by key (one
-    given keeps the others); a solve prints nothing (no timings)."""
+    SQP's or an RTI's: iterations ``HPIPM_LIMITS``, residuals from the SQP's ``tol``), the
+    user's HPIPM options added key by key (one given keeps the others); a solve prints
+    nothing (no timings)."""
     from aeromanip.nmpc.backends.multiple_shooting import HPIPM_LIMITS
 
     made, real = [], ca.conic
@@ -119,17 +134,21 @@ def test_the_sparse_models_hpipm_has_its_limits_and_prints_nothing(
         return real(name, solver, sparsity, opts)
 
     monkeypatch.setattr(ca, "conic", conic)
-    opts = {"codegen": False, "qpsol": "hpipm", "seed": "none", "rti": rti,
+    opts = {"codegen": False, "qpsol": "hpipm", "seed": "none", "rti": rti, "tol": sqp_tol,
             "qpsol_options": {"hpipm": {"warm_start": True}}}  # fmt: skip
     strat = Weighted(small_problem, "sqp", opts)
     monkeypatch.undo()
-    ((solver, given),) = made
-    tol, iterations = HPIPM_LIMITS["rti" if rti else "sqp"]
-    assert solver == "hpipm" and given["print_time"] is False
-    hpipm = given["hpipm"]
-    assert hpipm["warm_start"] is True and hpipm["mode"] == "robust"
-    assert hpipm["iter_max"] == iterations
-    assert all(hpipm[f"res_{r}_max"] == tol for r in "gbdm")
+    # the solver of the SQP's tolerance, and one of the tightest (after a near-failed line
+    # search) unless that is the same
+    tols = [qp_tol] if qp_tol == HPIPM_LIMITS["rti" if rti else "sqp"][0] else [qp_tol, 1e-10]
+    assert len(made) == len(tols)
+    for (solver, given), tol in zip(made, tols, strict=True):
+        iterations = HPIPM_LIMITS["rti" if rti else "sqp"][1]
+        assert solver == "hpipm" and given["print_time"] is False
+        hpipm = given["hpipm"]
+        assert hpipm["warm_start"] is True and hpipm["mode"] == "robust"
+        assert hpipm["iter_max"] == iterations
+        assert all(hpipm[f"res_{r}_max"] == pytest.approx(tol) for r in "gbdm")
     tr = strat.transcription
     p = tr.parameters(X0, np.zeros(7), small_problem.stage_params(0.0))
     capfd.readouterr()
@@ -220,7 +239,7 @@ def test_the_sparse_models_row_products_are_the_nlps_jacobian_times_a_step():
     far = w + 50.0 * np.sign(np.random.default_rng(13).normal(size=w.size))
     assert np.isfinite(lbw).any() and np.isfinite(ubw).any()
     np.testing.assert_array_equal(model.result(far, p, lam, d)[0], np.clip(far, lbw, ubw))
-    res = model._qp(lin, *model._hessian_blocks(lin, np.zeros(J.shape[0]), p, False))
+    res = model._qp(model.qp, lin, *model._hessian_blocks(lin, np.zeros(J.shape[0]), p, False))
     assert res.ok and res.status == ""  # HPIPM's answer, checked with these products
 
 
@@ -373,10 +392,15 @@ def test_the_sparse_models_exact_step_falls_back_on_gauss_newton(exact_step, ok,
     model = object.__new__(MultipleShootingModel)
     gn_step = np.array([-0.05, 0.01])
     model._hessian_blocks = lambda lin, lam, p, exact: ("exact" if exact else "gn", None)
-    model._qp = lambda lin, kind, _: (
-        QpResult(np.array(exact_step, float), np.zeros(1), np.zeros(2), ok, "" if ok else "x")
-        if kind == "exact"
-        else QpResult(gn_step.copy(), np.zeros(1), np.zeros(2), True, "")
+    solvers = []  # the QP solver each QP was given
+    model.qp, model.qp_accurate = "loose", "accurate"
+    model._qp = lambda qp, lin, kind, _: (
+        solvers.append(qp)
+        or (
+            QpResult(np.array(exact_step, float), np.zeros(1), np.zeros(2), ok, "" if ok else "x")
+            if kind == "exact"
+            else QpResult(gn_step.copy(), np.zeros(1), np.zeros(2), True, "")
+        )
     )
     v, clipped = np.array([0.0, 0.0]), np.array([0.01, 0.0])
     lin = SimpleNamespace(grad=np.array([1.0, 2.0]), data={"v": clipped})
@@ -384,5 +408,9 @@ def test_the_sparse_models_exact_step_falls_back_on_gauss_newton(exact_step, ok,
     expected = np.array(exact_step, float) if kept else gn_step
     np.testing.assert_array_equal(res.d, expected + clipped - v)
     assert res.ok is (ok or not kept)
+    assert solvers == ["loose"] * (1 if kept else 2)
     gn = model.step(v, lin, np.zeros(1), np.zeros(2), np.zeros(0), False)
     np.testing.assert_array_equal(gn.d, gn_step + clipped - v)
+    solvers.clear()  # asked for accuracy: every QP of the step by the accurate solver
+    model.step(v, lin, np.zeros(1), np.zeros(2), np.zeros(0), True, accurate=True)
+    assert solvers == ["accurate"] * (1 if kept else 2)

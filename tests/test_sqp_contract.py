@@ -454,7 +454,7 @@ def test_an_sqp_solve_reports_its_qps_and_its_time(rti):
     backend = Weighted(pb, "sqp", opts).solvers[0].backend
     tr, qps = backend.tr, []
     step = backend.model.step
-    backend.model.step = lambda *a: qps.append(1) or step(*a)
+    backend.model.step = lambda *a, **kw: qps.append(1) or step(*a, **kw)
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
     t0 = time.perf_counter()
     res = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)

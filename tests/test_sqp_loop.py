@@ -14,6 +14,7 @@ from aeromanip.nmpc.backends import sqp as sqp_module
 from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel
 from aeromanip.nmpc.backends.qp_model import Linearization, QpResult
 from aeromanip.nmpc.backends.sqp import (
+    ACCURATE_QPS_BELOW,
     DAMPING_START,
     DEFAULTS,
     PENALTY_FLOOR,
@@ -26,11 +27,13 @@ class ScriptedModel:
     """A QP model of one variable whose iterates are scripted: the KKT error of iterate
     ``k`` is ``kkt[k]``, QP ``k`` returns the step ``d = 1``, row multiplier ``lams[k]``
     and bound multiplier ``k + 1``, and the merit refuses its full step when ``k`` is in
-    ``short`` (half of it is then taken); the cost is 1 (``nan`` at the iterates in
-    ``nan_at``), the rows hold. Each QP's inputs are recorded in ``calls``."""
+    ``short`` (half of it is then taken) and every step longer than ``cut[k]``; the cost
+    is 1 (``nan`` at the iterates in ``nan_at``), the rows hold. Each QP's inputs are
+    recorded in ``calls``."""
 
-    def __init__(self, kkt, lams=None, short=(), nan_at=()):
+    def __init__(self, kkt, lams=None, short=(), nan_at=(), cut=None):
         self.kkt, self.lams, self.short, self.nan_at = kkt, lams, set(short), set(nan_at)
+        self.cut = cut or {}  # QP index -> the longest step its line search accepts
         self.calls = []
 
     def start(self, w0, p, lbg, ubg, lam_g0, lam_x0, shift):
@@ -44,10 +47,11 @@ class ScriptedModel:
     def kkt_error(self, v, lin, lam_c, lam_v):
         return self.kkt[len(self.calls)]
 
-    def step(self, v, lin, lam_c, lam_v, p, exact, damping=0.0):
+    def step(self, v, lin, lam_c, lam_v, p, exact, damping=0.0, accurate=False):
         k = len(self.calls)
         self.calls.append(SimpleNamespace(v=v.copy(), damping=damping, exact=exact,
-                                          lam_c=lam_c.copy(), lam_v=lam_v.copy()))  # fmt: skip
+                                          accurate=accurate, lam_c=lam_c.copy(),
+                                          lam_v=lam_v.copy()))  # fmt: skip
         lam = np.array([self.lams[k] if self.lams else 0.0])
         return QpResult(np.ones(1), lam, np.array([k + 1.0]), True, "")
 
@@ -55,6 +59,8 @@ class ScriptedModel:
         call = self.calls[-1]
         alpha = float(w[0] - call.v[0])
         if alpha == 1.0 and len(self.calls) - 1 in self.short:
+            return 1e9, 0.0
+        if alpha > self.cut.get(len(self.calls) - 1, 1.0):
             return 1e9, 0.0
         return 1.0 - alpha, 0.0
 
@@ -91,6 +97,22 @@ def test_each_qp_gets_the_damping_the_last_step_left_and_the_last_qps_multiplier
     assert [c.lam_v[0] for c in model.calls] == [0.0, 1.0, 2.0, 3.0]
     assert [c.lam_c[0] for c in model.calls] == [0.0, 0.1, 0.2, 0.3]
     np.testing.assert_allclose(res.w, [3.5])  # three full steps and a half one
+
+
+def test_a_line_search_cut_below_a_hundredth_makes_the_solves_later_qps_accurate():
+    """Five QPs: steps of 1, 1/2, 1/128, 1 (the second one shortened, the third cut below
+    ``ACCURATE_QPS_BELOW``): the QPs after the third are asked to be accurate, to the end
+    of the solve, and the next solve starts inexact again."""
+    model = ScriptedModel(kkt=[1.0] * 5 + [0.0], cut={1: 0.5, 2: 2.0**-7})
+    assert 2.0**-6 > ACCURATE_QPS_BELOW > 2.0**-7  # the third cut just below the edge
+    sqp = backend(model)
+    run(sqp)
+    assert [c.accurate for c in model.calls] == [False, False, False, True, True]
+    model.calls.clear()
+    model.cut = {1: 2.0**-6}  # just above the edge: no accuracy asked
+    model.kkt = [1.0] * 3 + [0.0]
+    run(sqp)
+    assert [c.accurate for c in model.calls] == [False, False, False]
 
 
 @pytest.mark.parametrize(

@@ -180,9 +180,11 @@ class CondensedModel:
         p: np.ndarray,
         exact: bool,
         damping: float = 0.0,
+        accurate: bool = False,
     ) -> QpResult:
         """The dense QP on the rows that may bind; ``damping`` times the Hessian's largest
-        diagonal entry is added to its diagonal (a Levenberg-Marquardt step)."""
+        diagonal entry is added to its diagonal (a Levenberg-Marquardt step). The
+        active-set solver's answer is exact: ``accurate`` changes nothing."""
         J, A, Jh = lin.data
         Hf = self.hess(v, p, lam_c)[0] if (exact and self.hess is not None) else None
         H = self._hessian(J, Jh, Hf, lam_c, lam_v, A)

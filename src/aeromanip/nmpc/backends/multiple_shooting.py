@@ -28,20 +28,36 @@ from aeromanip.nmpc.backends.qp import QpResult
 from aeromanip.nmpc.backends.qp_model import Linearization
 from aeromanip.nmpc.transcription import COUPLING, Transcription
 
-# HPIPM (robust mode) rarely reaches residuals of 1e-10 on these QPs and then runs all its
-# iterations (at N = 50 ~1 ms each). A converged SQP needs them: with looser residuals
-# (1e-8), or 25 iterations, the SQP stalls on the inexact steps short of tol = 1e-9 (the
-# backend matrix test's, seen on flight-rates/20hz from rest). A real-time iteration takes
-# one QP per control step: residuals of 1e-8 (~8 iterations) are plenty there.
-# (residual tolerance, iterations):
+# HPIPM (robust mode) reaches residuals of 1e-8 on these QPs in ~8 iterations, but rarely
+# 1e-9 or below: then it runs all its iterations (at N = 50 ~1 ms each). A converged SQP
+# needs its QPs solved well below its own tolerance: residuals of QP_TOL_SHARE times it,
+# between the limits below. At the default tol = 1e-6 that is 1e-8 (5-7x faster steps than
+# 1e-10 at N = 20-50, the same SQP iterations); at tol = 1e-9 (the backend matrix test's)
+# it is 1e-10, as the SQP stalls there on steps solved to 1e-8 (flight-rates/20hz from
+# rest). A real-time iteration takes one QP per control step: 1e-8 is plenty there.
+# (residual tolerance, iterations); the SQP's residual tolerance is the tightest it may get:
 HPIPM_LIMITS = {"sqp": (1e-10, 50), "rti": (1e-8, 25)}
+QP_TOL_SHARE = 1e-2  # a converged SQP's QP residuals: this times its own tol, ...
+QP_TOL_LOOSEST = 1e-8  # ... at most this (and at least the "sqp" limit above)
 
 
-def hpipm_options(kind: str, user: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """CasADi's ``conic`` options for HPIPM in a converged SQP (``"sqp"``) or an RTI
-    (``"rti"``), quiet, with the user's ``qpsol_options`` over them (inside ``"hpipm"``
-    key by key: one option given keeps the others' limits)."""
-    tol, iterations = HPIPM_LIMITS[kind]
+def qp_tolerance(kind: str, sqp_tol: float) -> float:
+    """HPIPM's residual tolerance in an SQP of tolerance ``sqp_tol`` (``kind``: ``"sqp"``
+    for a converged one, ``"rti"`` for real-time iterations)."""
+    tightest = HPIPM_LIMITS[kind][0]
+    if kind == "rti":
+        return tightest
+    return min(QP_TOL_LOOSEST, max(tightest, QP_TOL_SHARE * sqp_tol))
+
+
+def hpipm_options(
+    kind: str, user: Mapping[str, Any] | None = None, sqp_tol: float = 0.0
+) -> dict[str, Any]:
+    """CasADi's ``conic`` options for HPIPM in a converged SQP (``"sqp"``) of tolerance
+    ``sqp_tol`` or an RTI (``"rti"``), quiet, with the user's ``qpsol_options`` over them
+    (inside ``"hpipm"`` key by key: one option given keeps the others' limits)."""
+    iterations = HPIPM_LIMITS[kind][1]
+    tol = qp_tolerance(kind, sqp_tol)
     residuals = ("res_g_max", "res_b_max", "res_d_max", "res_m_max")
     own = {"mode": "robust", "iter_max": iterations, **dict.fromkeys(residuals, tol)}
     user = dict(user or {})
@@ -211,21 +227,33 @@ class MultipleShootingModel:
         self.a_perm = np.asarray(order.nonzeros(), dtype=int) - 1  # CCS position -> ours
         self.a_fixed = np.array(vals[: self.n_gap_entries])
         kind = "rti" if self.opts["rti"] else "sqp"
-        opts = hpipm_options(kind, self.opts["qpsol_options"])
+        user = self.opts["qpsol_options"]
+        self.qp = self._hpipm(hpipm_options(kind, user, self.opts["tol"]), "")
+        # after a line search that nearly failed, the QPs of the solve are solved to the
+        # tightest tolerance (``step(accurate=True)``); the same solver if that is its own
+        tightest = hpipm_options(kind, user)
+        same = tightest["hpipm"] == hpipm_options(kind, user, self.opts["tol"])["hpipm"]
+        self.qp_accurate = self.qp if same else self._hpipm(tightest, "accurate_")
+
+    def _hpipm(self, opts: dict[str, Any], tag: str) -> Buffered:
+        """An HPIPM solver of this model's QP with CasADi ``conic`` options ``opts``, called
+        through an MX Function of the nonzeros (CasADi's buffer interface would keep
+        feeding HPIPM the first call's data)."""
+        N = self.N
         with quiet_stdout():
-            qp = ca.conic(f"aeromanip_hpipm_{N}", "hpipm", {"h": self.H_sp, "a": self.A_sp}, opts)
-        # called through an MX Function of the nonzeros: CasADi's buffer interface would
-        # keep feeding HPIPM the first call's data
+            qp = ca.conic(
+                f"aeromanip_hpipm_{tag}{N}", "hpipm", {"h": self.H_sp, "a": self.A_sp}, opts
+            )
         hn, an = ca.MX.sym("h", self.H_sp.nnz()), ca.MX.sym("a", self.A_sp.nnz())
         vec = {n: ca.MX.sym(n, m) for n, m in (("g", self.nw), ("lba", self.ng),
                ("uba", self.ng), ("lbx", self.nw), ("ubx", self.nw))}  # fmt: skip
         out = qp(h=ca.MX(self.H_sp, hn), a=ca.MX(self.A_sp, an), **vec)
         f = ca.Function(
-            f"aeromanip_hpipm_call_{N}",
+            f"aeromanip_hpipm_{tag}call_{N}",
             [hn, an, *vec.values()],
             [out["x"], out["lam_a"], out["lam_x"], out["cost"]],
         )
-        self.qp = Buffered(f)
+        return Buffered(f)
 
     # -- evaluation ----------------------------------------------------------------------
     def _split(self, v: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -412,21 +440,24 @@ class MultipleShootingModel:
         p: np.ndarray,
         exact: bool,
         damping: float = 0.0,
+        accurate: bool = False,
     ) -> QpResult:
         """The sparse QP, solved by HPIPM (with the exact Hessian if asked and it gives a
-        descending step, else with the Gauss-Newton one). ``damping`` is not used: on
-        this model it made the hierarchy's levels stall (the flight at 10 Hz)."""
-        res = self._qp(lin, *self._hessian_blocks(lin, lam_c, p, exact))
+        descending step, else with the Gauss-Newton one), to its tightest residuals if
+        ``accurate`` (``qp_tolerance``). ``damping`` is not used: on this model it made
+        the hierarchy's levels stall (the flight at 10 Hz)."""
+        qp = self.qp_accurate if accurate else self.qp
+        res = self._qp(qp, lin, *self._hessian_blocks(lin, lam_c, p, exact))
         huge = np.abs(res.d).max(initial=0.0) > MAX_STEP  # unbounded: an indefinite QP
         if exact and (not res.ok or huge or float(lin.grad @ res.d) > 0.0):
-            res = self._qp(lin, *self._hessian_blocks(lin, lam_c, p, False))
+            res = self._qp(qp, lin, *self._hessian_blocks(lin, lam_c, p, False))
         res.d += lin.data["v"] - v  # the step is taken from the clipped iterate
         return res
 
-    def _qp(self, lin: Linearization, Hs: np.ndarray, HT: np.ndarray) -> QpResult:
-        """One QP with the given Hessian blocks."""
+    def _qp(self, qp: Buffered, lin: Linearization, Hs: np.ndarray, HT: np.ndarray) -> QpResult:
+        """One QP with the given Hessian blocks, solved by ``qp``."""
         d = lin.data
-        x, lam_a, lam_x, _ = self.qp(
+        x, lam_a, lam_x, _ = qp(
             np.concatenate([Hs.transpose(0, 2, 1).ravel(), HT.T.ravel()]),
             self._a_values(lin)[self.a_perm],
             lin.grad,

@@ -68,11 +68,14 @@ class QpModel(Protocol):
         p: np.ndarray,
         exact: bool,
         damping: float = 0.0,
+        accurate: bool = False,
     ) -> QpResult:
         """The QP step from ``v`` (Gauss-Newton Hessian, or the exact one made positive
         definite, plus ``damping`` times its largest diagonal entry on the diagonal: a model
         may ignore it, the sparse one does), its multipliers and whether the QP solver
-        succeeded."""
+        succeeded. ``accurate``: solve the QP to the solver's tightest tolerance (a model
+        whose QP solver is an interior point, the sparse one, otherwise solves it only as
+        tightly as the SQP's tolerance needs; an active-set solver is exact anyway)."""
         ...
 
     def merit(self, v: np.ndarray, p: np.ndarray) -> tuple[float, float]:

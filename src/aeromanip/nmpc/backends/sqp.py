@@ -18,7 +18,10 @@ How it is built, and why:
   and the sparse OCP-structured QP is solved by HPIPM's Riccati-based interior point
   (``multiple_shooting``: stage Functions mapped over the horizon, so generated code,
   build time and memory do not grow with N). ``qpsol="auto"`` picks the first up to
-  ``condense_max_horizon`` steps.
+  ``condense_max_horizon`` steps. An interior point solves a QP only to a tolerance:
+  HPIPM's residuals are 1e-2 of the SQP's ``tol`` (1e-8 at the default), and its
+  tightest (1e-10, ~5x the iterations) for the rest of a solve once a line search has
+  nearly failed on an inexact step.
 * **Hierarchy rows** ``c_r = ||R_r||^2 <= b_r`` (stage-wise, ``Hierarchical``) are
   linearised, and their curvature enters the Hessian as ``2 lam_r J_r^T J_r`` (the
   Gauss-Newton part of the constraint's Hessian, positive semi-definite since
@@ -146,6 +149,9 @@ EXACT_FROM_ITERATION = 6  # "auto": the exact Hessian from this (0-based) iterat
 ARMIJO = 1e-4  # sufficient decrease of the l1 merit, per unit of its directional derivative
 BACKTRACK = 0.5  # step-length factor per rejected trial
 MIN_STEP = 1e-3  # the shortest step tried; taken as it is
+# a step shorter than this share of the QP's (the line search nearly failed: the QP's
+# inexact answer may not descend) makes the solve's later QPs exact (``accurate``)
+ACCURATE_QPS_BELOW = 0.01
 # Levenberg-Marquardt damping (relative to the Hessian's largest diagonal entry) after
 # the first shortened step of a solve, and its factor per shortened (up) or full (down) one
 DAMPING_START = 1e-3
@@ -286,6 +292,7 @@ class SqpBackend(Backend):
         max_iter = 1 if o["rti"] else int(o["max_iter"])
         acceptable = 0  # iterations in a row at the acceptable level
         damping = 0.0  # Levenberg-Marquardt: grows after each shortened step
+        accurate = False  # QPs to the tightest tolerance: after a line search nearly failed
         while True:
             lin = model.linearize(v, p)
             f = lin.f
@@ -297,7 +304,7 @@ class SqpBackend(Backend):
             if status:
                 ok = status in SOLVED
                 break
-            qp = model.step(v, lin, lam_c, lam_v, p, exact, damping)
+            qp = model.step(v, lin, lam_c, lam_v, p, exact, damping, accurate=accurate)
             it += 1
             if not qp.ok:
                 status = f"QP failed: {qp.status}"
@@ -313,6 +320,7 @@ class SqpBackend(Backend):
                 d, lam_c, lam_v = soc.d, soc.lam_a, soc.lam_x
             v = v + alpha * d
             damping = _damping(damping, alpha)
+            accurate = accurate or alpha < ACCURATE_QPS_BELOW
             exact = o["hessian"] == "exact" or (
                 o["hessian"] == "auto" and _go_exact(model, exact, alpha, it)
             )
