@@ -35,7 +35,7 @@ from aeromanip.nmpc.transcription import COUPLING, Transcription
 # 1e-10 at N = 20-50, the same SQP iterations); at tol = 1e-9 (the backend matrix test's)
 # it is 1e-10, as the SQP stalls there on steps solved to 1e-8 (flight-rates/20hz from
 # rest). A real-time iteration takes one QP per control step: 1e-8 is plenty there.
-# (residual tolerance, iterations); the SQP's residual tolerance is the tightest it may get:
+# per kind of SQP: (the tightest residual tolerance asked of HPIPM, its iterations)
 HPIPM_LIMITS = {"sqp": (1e-10, 50), "rti": (1e-8, 25)}
 QP_TOL_SHARE = 1e-2  # a converged SQP's QP residuals: this times its own tol, ...
 QP_TOL_LOOSEST = 1e-8  # ... at most this (and at least the "sqp" limit above)
