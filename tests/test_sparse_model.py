@@ -105,7 +105,7 @@ def test_the_sparse_model_takes_the_multipliers_only_when_both_come(sparse_model
 def test_a_converged_sqps_qp_residuals_are_a_hundredth_of_its_tolerance_within_limits():
     """HPIPM's residual tolerance: 1e-2 times a converged SQP's ``tol``, no looser than
     1e-8 and no tighter than 1e-10; an RTI's is 1e-8 whatever its ``tol``."""
-    from aeromanip.nmpc.backends.multiple_shooting import qp_tolerance
+    from aeromanip.nmpc.backends.hpipm import qp_tolerance
 
     assert qp_tolerance("sqp", 1e-6) == pytest.approx(1e-8)  # the default tol
     assert qp_tolerance("sqp", 1e-7) == pytest.approx(1e-9)
@@ -124,7 +124,7 @@ def test_the_sparse_models_hpipm_has_its_limits_and_prints_nothing(
     SQP's or an RTI's: iterations ``HPIPM_LIMITS``, residuals from the SQP's ``tol``), the
     user's HPIPM options added key by key (one given keeps the others); a solve prints
     nothing (no timings)."""
-    from aeromanip.nmpc.backends.multiple_shooting import HPIPM_LIMITS
+    from aeromanip.nmpc.backends.hpipm import HPIPM_LIMITS
 
     made, real = [], ca.conic
 

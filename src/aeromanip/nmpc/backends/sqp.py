@@ -65,8 +65,9 @@ from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult, make_backend
 from aeromanip.nmpc.backends.codegen import limit_blas_threads
 from aeromanip.nmpc.backends.condensed import CondensedModel
+from aeromanip.nmpc.backends.hpipm import check_hpipm_options
 from aeromanip.nmpc.backends.kkt import l1, violation
-from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel, check_hpipm_options
+from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel
 from aeromanip.nmpc.backends.qp import SOLVERS as QP_SOLVERS
 from aeromanip.nmpc.backends.qp import DenseQp, QpResult
 from aeromanip.nmpc.backends.qp_model import Linearization, QpModel

@@ -1,0 +1,66 @@
+"""HPIPM's options for the SQP's sparse QP (``multiple_shooting``): its residual
+tolerance and iterations by the kind of SQP, the user's options over them, and a check
+that HPIPM takes them."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import casadi as ca
+
+from aeromanip.errors import ConfigError
+from aeromanip.nmpc.backends.base import casadi_message
+from aeromanip.nmpc.backends.codegen import quiet_stdout
+
+# HPIPM (robust mode) reaches residuals of 1e-8 on these QPs in ~8 iterations, but rarely
+# 1e-9 or below: then it runs all its iterations (at N = 50 ~1 ms each). A converged SQP
+# needs its QPs solved well below its own tolerance: residuals of QP_TOL_SHARE times it,
+# between the limits below. At the default tol = 1e-6 that is 1e-8 (5-7x faster steps than
+# 1e-10 at N = 20-50, the same SQP iterations); at tol = 1e-9 (the backend matrix test's)
+# it is 1e-10, as the SQP stalls there on steps solved to 1e-8 (flight-rates/20hz from
+# rest). A real-time iteration takes one QP per control step: 1e-8 is plenty there.
+# per kind of SQP: (the tightest residual tolerance asked of HPIPM, its iterations)
+HPIPM_LIMITS = {"sqp": (1e-10, 50), "rti": (1e-8, 25)}
+QP_TOL_SHARE = 1e-2  # a converged SQP's QP residuals: this times its own tol, ...
+QP_TOL_LOOSEST = 1e-8  # ... at most this (and at least the "sqp" limit above)
+
+
+def qp_tolerance(kind: str, sqp_tol: float) -> float:
+    """HPIPM's residual tolerance in an SQP of tolerance ``sqp_tol`` (``kind``: ``"sqp"``
+    for a converged one, ``"rti"`` for real-time iterations)."""
+    tightest = HPIPM_LIMITS[kind][0]
+    if kind == "rti":
+        return tightest
+    return min(QP_TOL_LOOSEST, max(tightest, QP_TOL_SHARE * sqp_tol))
+
+
+def hpipm_options(
+    kind: str, user: Mapping[str, Any] | None = None, sqp_tol: float = 0.0
+) -> dict[str, Any]:
+    """CasADi's ``conic`` options for HPIPM in a converged SQP (``"sqp"``) of tolerance
+    ``sqp_tol`` or an RTI (``"rti"``), quiet, with the user's ``qpsol_options`` over them
+    (inside ``"hpipm"`` key by key: one option given keeps the others' limits)."""
+    iterations = HPIPM_LIMITS[kind][1]
+    tol = qp_tolerance(kind, sqp_tol)
+    residuals = ("res_g_max", "res_b_max", "res_d_max", "res_m_max")
+    own = {"mode": "robust", "iter_max": iterations, **dict.fromkeys(residuals, tol)}
+    user = dict(user or {})
+    given = user.pop("hpipm", {})
+    inner = {**own, **given} if isinstance(given, Mapping) else given  # HPIPM names a bad one
+    return {"error_on_fail": False, "print_time": False, **user, "hpipm": inner}
+
+
+def check_hpipm_options(options: dict[str, Any]) -> None:
+    """HPIPM takes ``options`` (tried on a one-step OCP QP)."""
+    opts = hpipm_options("sqp", options)
+    H = ca.DM.eye(3)
+    A = ca.DM([[-1.0, -1.0, 1.0]])  # x1 = x0 + u0
+    try:
+        with quiet_stdout():
+            qp = ca.conic("aeromanip_check", "hpipm", {"h": H.sparsity(), "a": A.sparsity()}, opts)
+            qp(h=H, g=0.0, a=A, lba=0.0, uba=0.0, lbx=-1.0, ubx=1.0)
+    except RuntimeError as e:
+        raise ConfigError(
+            f"solver_options.qpsol_options: hpipm rejects them: {casadi_message(e)}"
+        ) from None
