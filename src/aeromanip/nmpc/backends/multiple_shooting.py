@@ -174,12 +174,12 @@ class MultipleShootingModel:
         self.a_fixed = np.array(vals[: self.n_gap_entries])
         kind = "rti" if self.opts["rti"] else "sqp"
         user = self.opts["qpsol_options"]
-        self.qp = self._hpipm(hpipm_options(kind, user, self.opts["tol"]), "")
+        own = hpipm_options(kind, user, self.opts["tol"])
+        self.qp = self._hpipm(own, "")
         # after a line search that nearly failed, the QPs of the solve are solved to the
         # tightest tolerance (``step(accurate=True)``); the same solver if that is its own
         tightest = hpipm_options(kind, user)
-        same = tightest["hpipm"] == hpipm_options(kind, user, self.opts["tol"])["hpipm"]
-        self.qp_accurate = self.qp if same else self._hpipm(tightest, "accurate_")
+        self.qp_accurate = self.qp if tightest == own else self._hpipm(tightest, "accurate_")
 
     def _hpipm(self, opts: dict[str, Any], tag: str) -> Buffered:
         """An HPIPM solver of this model's QP with CasADi ``conic`` options ``opts``, called
