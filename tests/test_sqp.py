@@ -128,7 +128,7 @@ def test_rti_closed_loop_tracks_like_the_converged_controller():
 
 def test_failures_fall_back_then_stop():
     pb = make_problem(levels=(0, 0))
-    ctrl = Controller(pb, "weighted", "sqp", {**FAST, "max_iter": 1})
+    ctrl = Controller(pb, "weighted", "sqp", {**FAST, "max_iter": 1, "seed_max_iter": 1})
     cmd = ctrl.step(X0, 0.0)
     assert cmd.status == "stopped" and np.all(cmd.u == 0.0)
     assert "Maximum_Iterations" in cmd.message
