@@ -2,8 +2,10 @@
 
 Each built-in scenario variant's problem is solved once from its initial state (a cold
 start from rest: identical inputs) by the backend under test and by IPOPT
-(``tol = 1e-10``). The problems are nonconvex, so two solvers may stop in different local
-optima; what must hold is:
+(``tol = 1e-12``: a strict hierarchy's higher level, its regulariser at 1 %, has costs
+~1e-4, and ``1e-10`` left them ~1e-6 apart, the tolerance the comparison allows). The
+problems are nonconvex, so two solvers may stop in different local optima; what must
+hold is:
 
 * the backend's answer is a local optimum: IPOPT restarted there stays (same costs; for
   the weighted strategy: IPOPT starts a hierarchy's lower levels from the level above's
@@ -19,13 +21,13 @@ import pytest
 from aeromanip.experiment.scenario import builtin_scenarios, load_scenarios
 from aeromanip.nmpc.controller import Controller
 
-REFERENCE = {"ipopt.tol": 1e-10}
+REFERENCE = {"ipopt.tol": 1e-12}
 # restarted at an answer, IPOPT's barrier must start small or it walks away from it
 RESTART = {**REFERENCE, "ipopt.mu_init": 1e-10, "ipopt.warm_start_bound_push": 1e-10}
 OPTIONS = {
-    "fatrop": {"fatrop.tol": 1e-10},
-    "sqp": {"tol": 1e-9, "qpsol": "daqp"},  # condensed, dense QP
-    "sqp-hpipm": {"tol": 1e-9, "qpsol": "hpipm"},  # multiple shooting, sparse QP
+    "fatrop": {"fatrop.tol": 1e-11},
+    "sqp": {"tol": 1e-11, "qpsol": "daqp"},  # condensed, dense QP
+    "sqp-hpipm": {"tol": 1e-11, "qpsol": "hpipm"},  # multiple shooting, sparse QP
 }
 REL = 1e-6  # costs within this (relative) are the same optimum
 CASES = [(name, variant) for name in builtin_scenarios() for variant in load_scenarios(name)]
@@ -54,6 +56,8 @@ def same(a, b):
 
 KNOWN = {  # cases that fail today, each with its issue: they must start passing there
     ("clearance", "", "fatrop"): "issue 14: fatrop fails from rest with the clearance binding",
+    ("flight-rates", "20hz", "sqp"): "issue 12: the condensed SQP at N = 40 stops 4e-7 above "
+    "level 0's optimum (regulariser at 1 %), and level 1 then ends 2.4e-6 above IPOPT's",
 }
 
 

@@ -10,12 +10,15 @@ from aeromanip.experiment.scenario import load_scenarios
 from aeromanip.nmpc.constraints import Bounds, Clearance
 from aeromanip.nmpc.controller import Controller
 from aeromanip.nmpc.problem import Problem
+from aeromanip.nmpc.strategies import REGULARIZER_SCALE
 from aeromanip.nmpc.transcription import Transcription
-from aeromanip.references import Constant
+from aeromanip.references import Constant, Lissajous
+from aeromanip.robot.kinematics import Kinematics
 from aeromanip.robot.loader import load_robot
 from aeromanip.tasks import CogAlignment, ControlRate, EndEffectorTracking, Posture
 
 X8 = load_robot("x8-3dof")
+X8_KIN = Kinematics(X8)
 X0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
 OPTIONS = {
     "ipopt": {"ipopt.tol": 1e-10},
@@ -24,9 +27,10 @@ OPTIONS = {
 }
 
 
-def problem(target=(0.5, 0.3, 0.6), horizon=6):
+def problem(target=(0.5, 0.3, 0.6), horizon=6, reference=None):
     pb = Problem(X8, horizon, 0.5, Bounds.from_robot(X8, platform_box={"z": (0.5, 2.0)}))
-    pb.add_task(EndEffectorTracking(Constant(list(target))), weight=10.0, level=0)
+    reference = Constant(list(target)) if reference is None else reference
+    pb.add_task(EndEffectorTracking(reference), weight=10.0, level=0)
     pb.add_task(CogAlignment(), weight=1.0, level=1)
     pb.add_task(ControlRate(), weight=0.1, terminal_weight=0.5, level=None)
     pb.add_constraint(Clearance(0.1))
@@ -38,12 +42,14 @@ def cog_cost(pb, X):
     return sum(float(np.sum(np.asarray(pb.kin.cog_body(x)).ravel()[:2] ** 2)) for x in X)
 
 
-def weighted_alone(pb, level_tasks):
-    """Level 0's own problem (its tasks and the regulariser), solved by IPOPT: its optimum."""
+def weighted_alone(pb, level_tasks, scale=REGULARIZER_SCALE):
+    """Level 0's own problem (its tasks, and the regulariser at ``scale`` of its weight),
+    built as a weighted problem of its own and solved by IPOPT: its optimum."""
     alone = Problem(X8, pb.horizon, pb.dt, pb.bounds)
     for e in pb.entries:
         if e.name in level_tasks or e.level is None:
-            alone.add_task(e.task, e.weight, e.terminal_weight, level=0, name=e.name)
+            s = scale if e.level is None else 1.0
+            alone.add_task(e.task, s * e.weight, s * e.terminal_weight, level=0, name=e.name)
     alone.constraints = list(pb.constraints)
     return Controller(alone, "weighted", "ipopt", OPTIONS["ipopt"]).step(X0, 0.0)
 
@@ -70,13 +76,43 @@ def test_level_zero_keeps_its_optimum_and_level_one_gains(backend):
     assert cog_cost(pb, cmd.plan_x) < 0.9 * cog_cost(pb, alone.plan_x)
 
 
+def test_the_regulariser_weighs_a_share_in_the_higher_level_and_all_of_it_in_the_last():
+    """At full weight the tracking level trades tracking error for smoother commands, and
+    the strict hierarchy pins that trade; at 1 % it tracks ~100x closer to what no
+    command can change. Either way its optimum is that of tracking plus the regulariser
+    at that share, solved on its own, and the last level minimises its task plus the
+    regulariser at full weight."""
+    ee0 = np.asarray(X8_KIN.ee_position(X0)).ravel()  # a loop starting at the EE
+    loop = Lissajous(ee0, [0.2, 0.2, 0.1], [0.05, 0.05, 0.05], [0.0, np.pi / 2, 0.0])
+    pb = problem(reference=loop)
+    # the tracking cost no plan avoids (the rates' first step): a negligible regulariser
+    floor = weighted_alone(pb, {"tracking"}, 1e-8).task_costs["tracking"]
+    excess = {}
+    for scale in (1.0, REGULARIZER_SCALE):
+        cmd = Controller(
+            pb, "hierarchical", "ipopt", OPTIONS["ipopt"], hierarchy={"regularizer_scale": scale}
+        ).step(X0, 0.0)
+        assert cmd.status == "ok", cmd.message
+        lv0, lv1 = cmd.levels
+        alone = weighted_alone(pb, {"tracking"}, scale)
+        assert lv0.objective == pytest.approx(sum(alone.task_costs.values()), rel=1e-6)
+        assert cmd.task_costs["tracking"] == pytest.approx(lv0.cost, rel=1e-7)
+        # the last level's objective: its task and the regulariser at its full weight
+        full = cmd.task_costs["cog"] + cmd.task_costs["control_rate"]
+        assert lv1.objective == pytest.approx(full, rel=1e-9)
+        excess[scale] = lv0.cost - floor
+    assert 0 < excess[REGULARIZER_SCALE] < 0.01 * excess[1.0]
+
+
 def test_the_stagewise_mode_lets_the_lower_level_take_its_tolerance():
-    """The paper's relaxed form, for contrast: level 0 loses up to its tolerance."""
+    """The paper's relaxed form, for contrast: level 0 loses up to its tolerance (both
+    with the same level-0 problem: the regulariser at strict mode's share)."""
     pb = problem()
     strict = Controller(pb, "hierarchical", "ipopt", OPTIONS["ipopt"]).step(X0, 0.0)
     relaxed = Controller(
-        pb, "hierarchical", "ipopt", OPTIONS["ipopt"], hierarchy={"mode": "stagewise"}
-    ).step(X0, 0.0)
+        pb, "hierarchical", "ipopt", OPTIONS["ipopt"],
+        hierarchy={"mode": "stagewise", "regularizer_scale": REGULARIZER_SCALE},
+    ).step(X0, 0.0)  # fmt: skip
     assert relaxed.levels[0].loss > 1e3 * max(abs(strict.levels[0].loss), 1e-12)
     assert relaxed.task_costs["cog"] < strict.task_costs["cog"]
 
@@ -122,3 +158,39 @@ def test_the_log_reports_losses_exact_rho_and_every_points_clearance():
         got = [log.column(f"clear_{p}")[k] for p in kin.default_clearance_points()]
         np.testing.assert_allclose(got, depth, atol=1e-12)
         assert log.column("clearance")[k] == pytest.approx(depth.min(), abs=1e-12)
+
+
+# `flight` (kinematic) from 385 to 425 s, from the state the hierarchy had reached there
+# with the regulariser at full weight in both levels: near the platform box's corner the
+# end effector's reach must reverse while the arm's CoG is held under the base
+CORNER = [
+    "sim='kinematic'",
+    "duration=40.0",
+    "reference.duration=40.0",
+    "reference.phase=[5.105088062083414, 3.163583802164922, 3.6411058855105694]",
+    "initial_state=[-0.5359125751347386, -0.013292125769710748, 0.8228304369197054,"
+    " -0.000444505276118116, -0.00044450525761705815, -0.2763007338204844, 1.8129825444640262]",
+]
+
+
+def _corner_rmse(*sets):
+    (sc,) = load_scenarios("flight", [*CORNER, *sets]).values()
+    s = simulate(sc).summary()
+    return s["ee_rmse_m"], s["cog_xy_mean_m"], s.get("levels")
+
+
+def test_the_hierarchy_tracks_through_the_box_corner_as_tracking_alone_does():
+    """Issue 12's target on the stretch of `flight` that missed it: the hierarchical EE
+    RMSE within 5 % or 0.02 mm of tracking-only's. With the regulariser at full weight
+    in the tracking level, the same stretch misses by 1 mm. (The CoG offset is smaller
+    than tracking-only's, ~3x here, where the arm's pan swings; ~40x over the flight.)"""
+    alone, cog_alone, _ = _corner_rmse(
+        "controller.strategy='weighted'", "tasks.cog.weight=0.0", "tasks.posture.weight=0.0"
+    )
+    hier, cog_hier, levels = _corner_rmse()
+    assert hier <= max(1.05 * alone, alone + 2e-5)
+    # level 1 took nothing from level 0 (its cost ~1e-8 here: the absolute loss)
+    assert levels["0"]["loss_max"] < 1e-10
+    assert cog_hier < cog_alone
+    full, _, _ = _corner_rmse("controller.hierarchy.regularizer_scale=1.0")
+    assert full > alone + 5e-4

@@ -292,6 +292,18 @@ SANITY_LIMITS = [
         id="rel-tol-huge",
     ),
     pytest.param(
+        ["controller.hierarchy.regularizer_scale=0"],
+        "controller.hierarchy.regularizer_scale",
+        ["0.0", "> 0"],
+        id="regularizer-scale-0",
+    ),
+    pytest.param(
+        ["controller.hierarchy.regularizer_scale=2"],
+        "controller.hierarchy.regularizer_scale",
+        ["2.0", "<= 1"],
+        id="regularizer-scale-2",
+    ),
+    pytest.param(
         ["tasks.tracking.weight=1e308"], "tasks.tracking.weight", ["1e+308", "[0, 1e+09]"], id="w"
     ),
     pytest.param(['name=""'], "name", ["''", "non-empty"], id="empty-name"),

@@ -46,7 +46,13 @@ from aeromanip.nmpc.backends import BACKENDS
 from aeromanip.nmpc.constraints import D_MIN, Bounds, Clearance
 from aeromanip.nmpc.model import MAX_TAU
 from aeromanip.nmpc.problem import Problem
-from aeromanip.nmpc.strategies import ABS_TOL, MAX_ABS_TOL, MAX_REL_TOL, MODE, REL_TOL
+from aeromanip.nmpc.strategies import (
+    ABS_TOL,
+    MAX_ABS_TOL,
+    MAX_REL_TOL,
+    MODE,
+    REL_TOL,
+)
 from aeromanip.nmpc.transcription import MODES
 from aeromanip.references import Reference, reference_from_table
 from aeromanip.robot.loader import robot_from_table
@@ -172,6 +178,9 @@ def _controller(t: Table, robot: RobotSpec) -> ControllerSettings:
             "rel_tol": ht.float("rel_tol", REL_TOL, minimum=0.0, maximum=MAX_REL_TOL),
             "abs_tol": ht.float("abs_tol", ABS_TOL, minimum=0.0, maximum=MAX_ABS_TOL),
         }
+        if ht.has("regularizer_scale"):  # default: Hierarchical's, by mode
+            scale = ht.float("regularizer_scale", positive=True, maximum=1.0)
+            hierarchy["regularizer_scale"] = scale
         ht.done()
         if strategy != "hierarchical":
             hierarchy = {}  # a weighted variant of a hierarchical scenario: not used

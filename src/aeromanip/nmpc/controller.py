@@ -64,7 +64,8 @@ class Controller:
             ``"sqp-rti"`` (one SQP iteration per step), or a ``Backend`` subclass as
             ``"package.module:Class"``; see ``aeromanip.nmpc.backends``.
         solver_options: extra options for the backend.
-        hierarchy: options of ``Hierarchical`` (``mode``, ``rel_tol``, ``abs_tol``).
+        hierarchy: options of ``Hierarchical`` (``mode``, ``rel_tol``, ``abs_tol``,
+            ``regularizer_scale``).
         time_budget_s: a solve slower than this is treated as failed (None: no budget).
         latency_s: the time from measuring the state to the command taking effect [s],
             compensated by prediction (module docstring); 0: none.

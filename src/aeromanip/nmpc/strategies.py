@@ -14,6 +14,15 @@ its optimum. How it stays there is the ``mode``:
   ~0. Rows that no decision can change (stage 0 of tasks without the command) are left
   out. The residual may not rotate on the sphere ``||R_j|| = ||R*_j||``: the higher task
   keeps its errors, not just their size.
+
+In ``strict`` mode the regularisers weigh ``regularizer_scale`` (1 %) of their weight in
+every level but the last: enough to make the level's optimum unique, too little to trade
+its task for smoother commands (at full weight the tracking level gives up millimetres
+of error to spare the rates, and the pinned residuals then keep that trade). The last
+level smooths the plan at full weight within what the higher levels left free. The
+relaxed modes keep the full weight everywhere: their allowance is what the lower level
+takes, and with a lighter regulariser their degenerate cost bounds (a bound at a
+minimum) became infeasible for IPOPT three levels down.
 * ``"stagewise"``, ``"total"``: the paper's literal form, each stage's cost (or the total)
   bounded by ``c_j <= c*_j + max(abs_tol, rel_tol |c*_j|)``. An equality on an optimal
   value is degenerate, so the bound is relaxed, and the lower level uses the relaxation:
@@ -41,6 +50,7 @@ REL_TOL = 1e-3  # relaxed modes: relative relaxation of a higher level's optimal
 ABS_TOL = 1e-6  # relaxed modes: absolute relaxation (where the optimum is ~0)
 MAX_REL_TOL = 1.0  # a level may double the higher optimum at most: beyond, no hierarchy
 MAX_ABS_TOL = 1e6  # [cost units]
+REGULARIZER_SCALE = 0.01  # strict mode: the regularisers' share in every level but the last
 
 
 @dataclass
@@ -50,7 +60,8 @@ class LevelReport:
     Attributes:
         level: priority (0 highest).
         cost: the level's own tasks' cost at its own optimum (regularisers excluded).
-        objective: what the level minimised at its optimum (``cost`` + regularisers).
+        objective: what the level minimised at its optimum (``cost`` + regularisers, at
+            the level's ``regularizer_scale``).
         gain: how much this level's cost dropped against the previous level's solution
             (what optimising it bought); 0 for the first level.
         loss: how much higher this level's cost is at the applied solution than at its
@@ -161,6 +172,9 @@ class Hierarchical:
         rel_tol, abs_tol: the relaxation of each higher level's optimal cost (the relaxed
             modes; ``strict`` has none).
         backend, options: NLP solver for every level.
+        regularizer_scale: the share of their weight the regularisers keep in every
+            level but the last, in (0, 1] (module docstring; 1: full weight everywhere;
+            default: ``REGULARIZER_SCALE`` in ``strict`` mode, else 1).
     """
 
     def __init__(
@@ -171,6 +185,7 @@ class Hierarchical:
         abs_tol: float = ABS_TOL,
         backend: str = "ipopt",
         options: Mapping[str, Any] | None = None,
+        regularizer_scale: float | None = None,
     ) -> None:
         if not problem.levels:
             raise ConfigError("tasks: a hierarchy needs at least one task with a level")
@@ -178,6 +193,12 @@ class Hierarchical:
             raise ConfigError(f"hierarchy.rel_tol: must be in [0, {MAX_REL_TOL:g}], got {rel_tol}")
         if not 0 <= abs_tol <= MAX_ABS_TOL:
             raise ConfigError(f"hierarchy.abs_tol: must be in [0, {MAX_ABS_TOL:g}], got {abs_tol}")
+        if regularizer_scale is None:
+            regularizer_scale = REGULARIZER_SCALE if mode == "strict" else 1.0
+        if not 0 < regularizer_scale <= 1:
+            raise ConfigError(
+                f"hierarchy.regularizer_scale: must be in (0, 1], got {regularizer_scale}"
+            )
         self.problem, self.mode = problem, mode
         self.rel_tol, self.abs_tol = rel_tol, abs_tol
         reg = [e for e in problem.entries if e.level is None]
@@ -186,7 +207,8 @@ class Hierarchical:
         for i, lvl in enumerate(self.levels):
             own = [e for e in problem.entries if e.level == lvl]
             higher = [[e for e in problem.entries if e.level == h] for h in self.levels[:i]]
-            tr = Transcription(problem, own + reg, higher, mode)
+            scale = 1.0 if i == len(self.levels) - 1 else regularizer_scale
+            tr = Transcription(problem, own + reg, higher, mode, scale)
             self.solvers.append(LevelSolver(own, tr, make_backend(tr, backend, options)))
         # an SQP needs no feasible start: a relaxed level starts from its own last
         # solution; a strict one from the level above's, on its rows exactly (from its

@@ -93,8 +93,11 @@ class StageModel:
     accel_bounds: tuple[np.ndarray, np.ndarray] | None = None
 
 
-def _stage_model(problem: Problem, objective: list[int], groups: list[list[int]]) -> StageModel:
-    """Build the stage and terminal Functions (see ``StageModel``)."""
+def _stage_model(
+    problem: Problem, objective: list[int], groups: list[list[int]], regularizer_scale: float
+) -> StageModel:
+    """Build the stage and terminal Functions (see ``StageModel``); the regularisers'
+    weights times ``regularizer_scale``."""
     kin, nx = problem.kin, problem.kin.nx
     z, u = ca.SX.sym("z", problem.model.nz), ca.SX.sym("u", nx)
     pk = ca.SX.sym("pk", problem.param_size)
@@ -111,6 +114,7 @@ def _stage_model(problem: Problem, objective: list[int], groups: list[list[int]]
             task, st = e.task, stage(i, with_u)
             r = task.residual(st) if with_u else task.terminal_residual(st)
             w = e.weight if with_u else e.terminal_weight
+            w = w * regularizer_scale if e.level is None else w
             out.append(ca.SX(0, 1) if r is None else ca.sqrt(ca.DM(w)) * ca.vec(r))
         return out
 
@@ -165,6 +169,8 @@ class Transcription:
             total (``mode="total"``, one row per group), or their weighted residual vectors
             per stage (``mode="residual"``, one row per residual entry and stage).
         mode: ``"stagewise"``, ``"total"`` or ``"residual"``.
+        regularizer_scale: the factor on the regularisers' (``level=None``) weights in
+            this objective (a higher hierarchy level's, ``strategies.REGULARIZER_SCALE``).
 
     Attributes:
         w, p, f, g: the NLP's variables, parameters, cost and constraint rows (CasADi SX).
@@ -184,6 +190,7 @@ class Transcription:
         objective: Sequence[TaskEntry],
         constrained: Sequence[Sequence[TaskEntry]] = (),
         mode: str = "stagewise",
+        regularizer_scale: float = 1.0,
     ) -> None:
         if mode not in MODES:
             raise ConfigError(f"hierarchy.mode: {mode!r} is not one of {MODES}")
@@ -194,7 +201,9 @@ class Transcription:
         self.stride = self.nz + self.nx
         idx = {e.name: i for i, e in enumerate(problem.entries)}
         groups = [[idx[e.name] for e in g] for g in constrained]
-        self.stage_model = _stage_model(problem, [idx[e.name] for e in objective], groups)
+        self.stage_model = _stage_model(
+            problem, [idx[e.name] for e in objective], groups, regularizer_scale
+        )
         self._build(len(groups))
         self._layout()
         limits = problem.bounds.accel_limits
