@@ -117,3 +117,22 @@ def test_at_10_hz_the_papers_model_fights_the_inner_loop_and_the_fitted_one_flie
     assert s["min_clearance_m"] >= 0.1
     tilt = np.degrees(np.hypot(log.column("roll"), log.column("pitch")))
     assert tilt.max() <= 5.0
+
+
+def test_with_the_platforms_lag_in_the_model_the_hierarchy_keeps_the_tracking(tmp_path):
+    """Issue 12's target in physics (`waypoints-physics`, 2 Hz): with the paper's model
+    the CoG level hands the end effector's motion to the platform, whose lag the model
+    cannot see (hierarchical error ~1.2x tracking-only's); with the identified lag in the
+    model, the hierarchical EE RMSE is within 5 % (or 0.02 mm) of tracking-only's, the
+    mean CoG offset >= 10x smaller, and both track ~2.5x closer than the paper's model."""
+    run_scenarios(load_scenarios("waypoints-physics"), tmp_path, progress=False, figures=False)
+    s = {v.name: read_summary(v / "summary.json") for v in tmp_path.iterdir() if v.is_dir()}
+    for model in ("paper", "lag"):
+        only, hier = s[f"{model}-tracking-only"], s[f"{model}-hierarchical"]
+        assert hier["cog_xy_mean_m"] <= 0.1 * only["cog_xy_mean_m"], model
+        assert hier["levels"]["0"]["loss_rel_mean"] < 1e-6, model
+    only, hier = s["lag-tracking-only"]["ee_rmse_m"], s["lag-hierarchical"]["ee_rmse_m"]
+    assert hier <= max(1.05 * only, only + 2e-5)
+    assert s["paper-hierarchical"]["ee_rmse_m"] > 1.15 * s["paper-tracking-only"]["ee_rmse_m"]
+    for v in ("tracking-only", "hierarchical"):
+        assert s[f"lag-{v}"]["ee_rmse_m"] < 0.5 * s[f"paper-{v}"]["ee_rmse_m"], v
