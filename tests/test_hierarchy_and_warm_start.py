@@ -412,7 +412,7 @@ def test_hierarchy_levels_start_from_documented_guesses(backend, mode):
     a relaxed mode from its own last solution, shifted."""
     pb = make_problem(TARGETS["far"])
     opts = {"codegen": False} if backend == "sqp" else None
-    # the regulariser at full weight in every level: with strict mode's 1 % the SQP's
+    # the regulariser at full weight in every level: with strict mode's 10 % the SQP's
     # level 1 fails here (test below); this test is about where each level starts
     hierarchy = {"mode": mode, "regularizer_scale": 1.0}
     ctrl = Controller(pb, "hierarchical", backend, opts, hierarchy=hierarchy)
@@ -450,7 +450,7 @@ def test_hierarchy_levels_start_from_documented_guesses(backend, mode):
 
 @pytest.mark.xfail(
     strict=True,
-    reason="issue 12: with the regulariser at 1 % in level 0 the arm is stretched to its "
+    reason="issue 12: with the regulariser at 10 % in level 0 the arm is stretched to its "
     "bounds toward the unreachable target, and DAQP finds level 1's pinned rows infeasible",
 )
 def test_the_strict_sqp_solves_level_one_toward_an_unreachable_target():

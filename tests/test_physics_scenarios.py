@@ -105,7 +105,8 @@ def test_at_10_hz_the_papers_model_fights_the_inner_loop_and_the_fitted_one_flie
     assert main(["run", "flight", "--quiet", "--no-mcap", "--out", str(old),
                  "--set", "controller.dt=0.1", "--set", "duration=15"]) == 3  # fmt: skip
     s = read_summary(old / "summary.json")
-    assert "left its bound" in s["flight_problem"] and s["max_bound_violation"] > 0.05
+    # out of its box by more than the run allows (max_bound_violation, 2 cm)
+    assert "left its bound" in s["flight_problem"] and s["max_bound_violation"] > 0.02
     tilt = np.degrees(np.hypot(*(RunLog.load(old).column(c) for c in ("roll", "pitch"))))
     assert tilt.max() > 15.0
     new = tmp_path / "fitted"

@@ -78,8 +78,8 @@ def test_level_zero_keeps_its_optimum_and_level_one_gains(backend):
 
 def test_the_regulariser_weighs_a_share_in_the_higher_level_and_all_of_it_in_the_last():
     """At full weight the tracking level trades tracking error for smoother commands, and
-    the strict hierarchy pins that trade; at 1 % it tracks ~100x closer to what no
-    command can change. Either way its optimum is that of tracking plus the regulariser
+    the strict hierarchy pins that trade; at 10 % its tracking cost above what no command
+    can change is ~60x smaller. Either way its optimum is that of tracking plus the regulariser
     at that share, solved on its own, and the last level minimises its task plus the
     regulariser at full weight."""
     ee0 = np.asarray(X8_KIN.ee_position(X0)).ravel()  # a loop starting at the EE
@@ -101,7 +101,7 @@ def test_the_regulariser_weighs_a_share_in_the_higher_level_and_all_of_it_in_the
         full = cmd.task_costs["cog"] + cmd.task_costs["control_rate"]
         assert lv1.objective == pytest.approx(full, rel=1e-9)
         excess[scale] = lv0.cost - floor
-    assert 0 < excess[REGULARIZER_SCALE] < 0.01 * excess[1.0]
+    assert 0 < excess[REGULARIZER_SCALE] < 0.03 * excess[1.0]
 
 
 def test_the_stagewise_mode_lets_the_lower_level_take_its_tolerance():

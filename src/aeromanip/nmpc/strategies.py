@@ -14,21 +14,22 @@ its optimum. How it stays there is the ``mode``:
   ~0. Rows that no decision can change (stage 0 of tasks without the command) are left
   out. The residual may not rotate on the sphere ``||R_j|| = ||R*_j||``: the higher task
   keeps its errors, not just their size.
-
-In ``strict`` mode the regularisers weigh ``regularizer_scale`` (1 %) of their weight in
-every level but the last: enough to make the level's optimum unique, too little to trade
-its task for smoother commands (at full weight the tracking level gives up millimetres
-of error to spare the rates, and the pinned residuals then keep that trade). The last
-level smooths the plan at full weight within what the higher levels left free. The
-relaxed modes keep the full weight everywhere: their allowance is what the lower level
-takes, and with a lighter regulariser their degenerate cost bounds (a bound at a
-minimum) became infeasible for IPOPT three levels down.
 * ``"stagewise"``, ``"total"``: the paper's literal form, each stage's cost (or the total)
   bounded by ``c_j <= c*_j + max(abs_tol, rel_tol |c*_j|)``. An equality on an optimal
   value is degenerate, so the bound is relaxed, and the lower level uses the relaxation:
   the higher level's loss is up to the tolerance (reported).
 * ``"residual"``: the residual vector kept in a box around ``R*_j`` whose half-width
   keeps ``c_j <= c*_j + tol`` at every corner (``strict`` with a tolerance).
+
+In ``strict`` mode the regularisers weigh ``regularizer_scale`` (10 %) of their weight in
+every level but the last: enough to keep the level well conditioned (at 1 % a real-time
+iteration at 10 Hz lost the tracking in physics), too little to trade its task for
+smoother commands (at full weight the tracking level gives up millimetres of error to
+spare the rates, and the pinned residuals then keep that trade). The last level
+smooths the plan at full weight within what the higher levels left free. The relaxed
+modes keep the full weight everywhere: their allowance is what the lower level takes,
+and with a lighter regulariser their degenerate cost bounds (a bound at a minimum)
+became infeasible for IPOPT three levels down.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ REL_TOL = 1e-3  # relaxed modes: relative relaxation of a higher level's optimal
 ABS_TOL = 1e-6  # relaxed modes: absolute relaxation (where the optimum is ~0)
 MAX_REL_TOL = 1.0  # a level may double the higher optimum at most: beyond, no hierarchy
 MAX_ABS_TOL = 1e6  # [cost units]
-REGULARIZER_SCALE = 0.01  # strict mode: the regularisers' share in every level but the last
+REGULARIZER_SCALE = 0.1  # strict mode: the regularisers' share in every level but the last
 
 
 @dataclass
