@@ -291,17 +291,10 @@ SANITY_LIMITS = [
         ["1e+308", "[0, 1]"],
         id="rel-tol-huge",
     ),
-    pytest.param(
-        ["controller.hierarchy.regularizer_scale=0"],
-        "controller.hierarchy.regularizer_scale",
-        ["0.0", "> 0"],
-        id="regularizer-scale-0",
-    ),
-    pytest.param(
-        ["controller.hierarchy.regularizer_scale=2"],
-        "controller.hierarchy.regularizer_scale",
-        ["2.0", "<= 1"],
-        id="regularizer-scale-2",
+    *(
+        pytest.param([f"{key}={v}"], key, [f"{v:.1f}", rule], id=f"regularizer-scale-{v}")
+        for key in ["controller.hierarchy.regularizer_scale"]
+        for v, rule in [(0, "> 0"), (2, "<= 1")]
     ),
     pytest.param(
         ["tasks.tracking.weight=1e308"], "tasks.tracking.weight", ["1e+308", "[0, 1e+09]"], id="w"
