@@ -29,6 +29,7 @@ from aeromanip.nmpc.transcription import COUPLING, Transcription
 
 QP_FEASIBILITY = 1e-6  # a QP step keeps its rows and bounds to this (relative to 1 + |d|)
 MAX_STEP = 1e3  # [m, rad, m/s, rad/s] a longer step comes from an indefinite, unbounded QP
+CONVEX_TOL = 1e-9  # an eigenvalue below -tol x the largest entry: an indefinite block
 
 
 def _rows_gauss_newton(cost_rows: list[tuple[int, ca.SX]], s: ca.SX, lam: ca.SX) -> ca.SX:
@@ -393,7 +394,10 @@ class MultipleShootingModel:
         ``accurate`` (``qp_tolerance``). ``damping`` is not used: on this model it made
         the hierarchy's levels stall (the flight at 10 Hz)."""
         qp = self.qp_accurate if accurate else self.qp
-        res = self._qp(qp, lin, *self._hessian_blocks(lin, lam_c, p, exact))
+        blocks = self._hessian_blocks(lin, lam_c, p, exact)
+        if exact and not _convex(*blocks):  # HPIPM would not descend on it
+            blocks = tuple(_reflected(b) for b in blocks)
+        res = self._qp(qp, lin, *blocks)
         huge = np.abs(res.d).max(initial=0.0) > MAX_STEP  # unbounded: an indefinite QP
         if exact and (not res.ok or huge or float(lin.grad @ res.d) > 0.0):
             res = self._qp(qp, lin, *self._hessian_blocks(lin, lam_c, p, False))
@@ -449,3 +453,20 @@ class MultipleShootingModel:
         """The iterate is the NLP's variable vector (stage 0 pinned); multipliers as they are."""
         lbw, ubw = self._bounds(p)
         return np.clip(v, lbw, ubw), lam_c, lam_v
+
+
+def _convex(stage_blocks: np.ndarray, terminal_block: np.ndarray) -> bool:
+    """Whether every stage's Hessian block (``(N, n, n)``) and the terminal one are
+    positive semi-definite (to ``CONVEX_TOL`` of their largest entry)."""
+    scale = max(1.0, float(np.abs(stage_blocks).max(initial=0.0)))
+    lowest = min(
+        float(np.linalg.eigvalsh(stage_blocks).min(initial=0.0)),
+        float(np.linalg.eigvalsh(terminal_block).min(initial=0.0)),
+    )
+    return lowest >= -CONVEX_TOL * scale
+
+
+def _reflected(blocks: np.ndarray) -> np.ndarray:
+    """Each symmetric block (``(..., n, n)``) with its eigenvalues' absolute values."""
+    lam, vec = np.linalg.eigh(blocks)
+    return (vec * np.abs(lam)[..., None, :]) @ np.swapaxes(vec, -1, -2)
