@@ -46,13 +46,7 @@ from aeromanip.nmpc.backends import BACKENDS
 from aeromanip.nmpc.constraints import D_MIN, Bounds, Clearance
 from aeromanip.nmpc.model import MAX_TAU
 from aeromanip.nmpc.problem import Problem
-from aeromanip.nmpc.strategies import (
-    ABS_TOL,
-    MAX_ABS_TOL,
-    MAX_REL_TOL,
-    MODE,
-    REL_TOL,
-)
+from aeromanip.nmpc.strategies import ABS_TOL, MAX_ABS_TOL, MAX_REL_TOL, MODE, REL_TOL
 from aeromanip.nmpc.transcription import MODES
 from aeromanip.references import Reference, reference_from_table
 from aeromanip.robot.loader import robot_from_table

@@ -395,8 +395,8 @@ class MultipleShootingModel:
         the hierarchy's levels stall (the flight at 10 Hz)."""
         qp = self.qp_accurate if accurate else self.qp
         blocks = self._hessian_blocks(lin, lam_c, p, exact)
-        if exact and not _convex(*blocks):  # HPIPM would not descend on it
-            blocks = tuple(_reflected(b) for b in blocks)
+        if exact:  # HPIPM would not descend on an indefinite block
+            blocks = _convexified(*blocks)
         res = self._qp(qp, lin, *blocks)
         huge = np.abs(res.d).max(initial=0.0) > MAX_STEP  # unbounded: an indefinite QP
         if exact and (not res.ok or huge or float(lin.grad @ res.d) > 0.0):
@@ -455,18 +455,19 @@ class MultipleShootingModel:
         return np.clip(v, lbw, ubw), lam_c, lam_v
 
 
-def _convex(stage_blocks: np.ndarray, terminal_block: np.ndarray) -> bool:
-    """Whether every stage's Hessian block (``(N, n, n)``) and the terminal one are
-    positive semi-definite (to ``CONVEX_TOL`` of their largest entry)."""
+def _convexified(
+    stage_blocks: np.ndarray, terminal_block: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The stage (``(N, n, n)``) and terminal Hessian blocks as they are if all are
+    positive semi-definite (to ``CONVEX_TOL`` of the stage blocks' largest entry), else
+    each with its eigenvalues' absolute values (one eigendecomposition per block)."""
+    lam_s, vec_s = np.linalg.eigh(stage_blocks)
+    lam_t, vec_t = np.linalg.eigh(terminal_block)
     scale = max(1.0, float(np.abs(stage_blocks).max(initial=0.0)))
-    lowest = min(
-        float(np.linalg.eigvalsh(stage_blocks).min(initial=0.0)),
-        float(np.linalg.eigvalsh(terminal_block).min(initial=0.0)),
-    )
-    return lowest >= -CONVEX_TOL * scale
+    if min(lam_s.min(initial=0.0), lam_t.min(initial=0.0)) >= -CONVEX_TOL * scale:
+        return stage_blocks, terminal_block
 
+    def reflected(lam: np.ndarray, vec: np.ndarray) -> np.ndarray:
+        return (vec * np.abs(lam)[..., None, :]) @ np.swapaxes(vec, -1, -2)
 
-def _reflected(blocks: np.ndarray) -> np.ndarray:
-    """Each symmetric block (``(..., n, n)``) with its eigenvalues' absolute values."""
-    lam, vec = np.linalg.eigh(blocks)
-    return (vec * np.abs(lam)[..., None, :]) @ np.swapaxes(vec, -1, -2)
+    return reflected(lam_s, vec_s), reflected(lam_t, vec_t)
