@@ -225,11 +225,7 @@ def test_the_second_order_correction_solves_the_last_qp_with_rows_taken_at_the_f
     pb.add_task(EndEffectorTracking(Constant([0.6, 0.4, 0.3])), weight=10.0)
     pb.add_task(ControlRate(), weight=0.1, level=None)
 
-    def reach(st):  # the end effector's horizontal distance from the origin, squared
-        ee = st.kin.ee_position(st.x)
-        return ee[0] ** 2 + ee[1] ** 2
-
-    pb.add_constraint(UserConstraint("ee_near", reach, 0.0, 0.2**2))
+    pb.add_constraint(UserConstraint("ee_near", _reach_squared, 0.0, 0.2**2))
     strat = Weighted(pb, "sqp", {"codegen": False, "qpsol": "daqp", "seed": "none"})
     tr, backend = strat.transcription, strat.solvers[0].backend
     model = backend.model
@@ -250,6 +246,50 @@ def test_the_second_order_correction_solves_the_last_qp_with_rows_taken_at_the_f
     ref = qp(h=H, g=lin.grad, a=A, lba=lin.lbc - c, uba=lin.ubc - c,
              lbx=model.lbU - v, ubx=model.ubU - v)  # fmt: skip
     np.testing.assert_allclose(soc.d, np.asarray(ref["x"]).ravel(), atol=1e-6)
+    plain = model.merit(v + d, p)[1]
+    assert plain > 1e-4 and model.merit(v + soc.d, p)[1] < 0.2 * plain
+
+
+def test_the_sparse_models_correction_solves_the_last_qp_with_rows_taken_at_the_full_step():
+    """``MultipleShootingModel.correction`` (HPIPM), as the condensed one: the last QP (its
+    Hessian blocks, the NLP's gradient) with the rows ``g(v + d) - A d``, where ``g`` and
+    ``A`` come from CasADi on the whole NLP (not the model's stage Functions), checked
+    against qrqp on that QP assembled here; the corrected step leaves the curved row
+    (the end effector's reach) far less than the plain one."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.6, 0.4, 0.3])), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    pb.add_constraint(UserConstraint("ee_near", _reach_squared, 0.0, 0.2**2))
+    strat = Weighted(pb, "sqp", {"codegen": False, "qpsol": "hpipm", "seed": "none"})
+    tr, backend = strat.transcription, strat.solvers[0].backend
+    model = backend.model
+    assert isinstance(model, MultipleShootingModel)
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    sol = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
+    assert sol.success
+    v, lam_c, lam_v = model.start(sol.w, p, tr.lbg, tr.ubg, sol.lam_g, sol.lam_x, False)
+    v = v + 0.02 * np.random.default_rng(1).normal(size=v.size)  # near the solution
+    lin = model.linearize(v, p)
+    d = model.step(v, lin, lam_c, lam_v, p, False).d
+    soc = model.correction(v, d, lin, p)
+    assert soc.ok and np.abs(soc.lam_a[np.isinf(tr.ubg) | np.isfinite(tr.lbg)]).max() > 0
+    base = lin.data["v"]  # the iterate clipped into the variable bounds (stage 0 pinned)
+    rows = ca.Function("rows", [tr.w, tr.p], [tr.g, ca.jacobian(tr.g, tr.w)])
+    A = np.asarray(rows(base, p)[1])
+    step = v + d - base
+    c = np.asarray(rows(base + step, p)[0]).ravel() - A @ step
+    Hs, HT = model._last_qp[1]
+    H = np.zeros((tr.w.numel(),) * 2)
+    for k, block in enumerate([*Hs, HT]):
+        i = k * model.ns
+        H[i : i + block.shape[0], i : i + block.shape[0]] = block
+    lbw, ubw = tr.variable_bounds(p)
+    qp = ca.conic("soc", "qrqp", {"h": ca.DM(H).sparsity(), "a": ca.DM(A).sparsity()},
+                  {"print_iter": False, "print_header": False, "print_info": False})  # fmt: skip
+    ref = qp(h=H, g=lin.grad, a=A, lba=tr.lbg - c, uba=tr.ubg - c, lbx=lbw - base,
+             ubx=ubw - base)  # fmt: skip
+    np.testing.assert_allclose(soc.d, np.asarray(ref["x"]).ravel() + base - v, atol=1e-6)
     plain = model.merit(v + d, p)[1]
     assert plain > 1e-4 and model.merit(v + soc.d, p)[1] < 0.2 * plain
 
@@ -463,3 +503,9 @@ def test_an_sqp_solve_reports_its_qps_and_its_time(rti):
     assert len(qps) == 1 if rti else len(qps) >= 3
     assert 0.0 < res.solve_time_s <= wall
     assert res.status == ("RTI step" if rti else "Solve_Succeeded")
+
+
+def _reach_squared(st):
+    """The end effector's horizontal distance from the origin, squared [m^2]."""
+    ee = st.kin.ee_position(st.x)
+    return ee[0] ** 2 + ee[1] ** 2

@@ -14,6 +14,7 @@ its step does not descend, the step is taken with the Gauss-Newton Hessian inste
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import casadi as ca
@@ -65,6 +66,7 @@ class MultipleShootingModel:
         self._functions()
         self._pattern()
         self.lbw0, self.ubw0 = tr.lbw.copy(), tr.ubw.copy()
+        self._last_qp: tuple[Buffered, tuple[np.ndarray, np.ndarray]] | None = None  # step's
 
     # -- building ------------------------------------------------------------------------
     def _rows(self) -> None:
@@ -400,8 +402,29 @@ class MultipleShootingModel:
         res = self._qp(qp, lin, *blocks)
         huge = np.abs(res.d).max(initial=0.0) > MAX_STEP  # unbounded: an indefinite QP
         if exact and (not res.ok or huge or float(lin.grad @ res.d) > 0.0):
-            res = self._qp(qp, lin, *self._hessian_blocks(lin, lam_c, p, False))
+            blocks = self._hessian_blocks(lin, lam_c, p, False)
+            res = self._qp(qp, lin, *blocks)
+        self._last_qp = (qp, blocks)
         res.d += lin.data["v"] - v  # the step is taken from the clipped iterate
+        return res
+
+    def correction(
+        self, v: np.ndarray, d: np.ndarray, lin: Linearization, p: np.ndarray
+    ) -> QpResult:
+        """The step ``d`` with a second-order correction: the last QP again, its rows'
+        values taken at ``v + d`` (``c(v + d) - A d``), so that curved rows (the
+        hierarchy's residuals, the clearance) hold to second order, as
+        ``CondensedModel.correction`` (the gap rows are linear: unchanged)."""
+        assert self._last_qp is not None, "correction() follows step()"
+        qp, blocks = self._last_qp
+        base = lin.data["v"]
+        step = v + d - base  # the QP's own step, from the clipped iterate
+        lbw, ubw = self._bounds(p)
+        Z, U, P, zN, pN = self._split(np.clip(base + step, lbw, ubw), p)
+        c, cT = self.f_merit(Z, U, P)[1].copy(), self.t_merit(zN, pN)[1].copy()
+        rows = self._rows_values(c, cT, base + step) - self._a_times(lin, step)
+        res = self._qp(qp, replace(lin, c=rows), *blocks)
+        res.d += base - v
         return res
 
     def _qp(self, qp: Buffered, lin: Linearization, Hs: np.ndarray, HT: np.ndarray) -> QpResult:
