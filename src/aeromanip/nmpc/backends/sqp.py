@@ -30,9 +30,8 @@ How it is built, and why:
   Each level starts from its own previous solution, shifted (no feasible start needed).
 * **Globalisation:** an l1 merit function with Armijo backtracking; a rejected full step
   that raised the rows' violation is retried once with a second-order correction (the
-  condensed model's rows re-linearised at its end: curved rows, the Maratos effect),
-  and after a shortened step the Hessian is damped (Levenberg-Marquardt, condensed
-  model only).
+  rows taken at its end: curved rows, the Maratos effect; both QP models), and after a
+  shortened step the Hessian is damped (Levenberg-Marquardt, condensed model only).
 * **Seeding** (``seed="ipopt"``): on a cold start (no multipliers: the first step, a
   reset, a retry) IPOPT solves first and the SQP polishes its answer; an answer costing
   more than ``seed_ratio`` times the last one's is solved so too, the cheaper kept (not
