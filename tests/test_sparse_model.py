@@ -12,7 +12,11 @@ import numpy as np
 import pytest
 
 from aeromanip.errors import ConfigError
-from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel
+from aeromanip.nmpc.backends.multiple_shooting import (
+    CONVEX_TOL,
+    MultipleShootingModel,
+    _convexified,
+)
 from aeromanip.nmpc.backends.qp import QpResult
 from aeromanip.nmpc.backends.sqp import (
     DEFAULTS,
@@ -447,3 +451,31 @@ def test_an_indefinite_exact_hessian_is_reflected_before_hpipm_sees_it():
     blocks["stage"] = ((q * np.array([2.0, 0.5, -2e-10])) @ q.T)[None]
     model.step(np.zeros(3), lin, np.zeros(1), np.zeros(3), np.zeros(0), True)
     assert seen[0][0] is blocks["stage"]
+
+
+@pytest.mark.parametrize(
+    ("largest", "lowest", "reflected"),
+    [
+        (2000.0, -200.0 * CONVEX_TOL, False),  # within 1e-9 of the largest entry (2e-6)
+        (2000.0, -3000.0 * CONVEX_TOL, True),
+        (0.5, -1.5 * CONVEX_TOL, True),  # small entries: the tolerance is 1e-9, not less
+        (0.5, -0.5 * CONVEX_TOL, False),
+    ],
+)
+def test_the_convexity_tolerance_is_relative_to_the_largest_entry_and_at_least_absolute(
+    largest, lowest, reflected
+):
+    """``_convexified``'s test: a block is indefinite below ``-CONVEX_TOL`` times the stage
+    blocks' largest entry, or ``-CONVEX_TOL`` where that is below 1; the blocks are given
+    their eigenvalues' absolute values (checked by NumPy) or returned as they are."""
+    q = np.linalg.qr(np.random.default_rng(7).normal(size=(3, 3)))[0]
+    lam = np.array([largest, 0.25 * largest, lowest])
+    stage = ((q * lam) @ q.T)[None]
+    assert np.abs(stage).max() <= largest  # the largest entry is at most the top eigenvalue
+    terminal = np.eye(3)
+    Hs, HT = _convexified(stage, terminal)
+    if reflected:
+        np.testing.assert_allclose(Hs[0], (q * np.abs(lam)) @ q.T, atol=1e-9 * largest)
+        assert np.linalg.eigvalsh(Hs[0]).min() == pytest.approx(-lowest, rel=1e-3)
+    else:
+        assert Hs is stage and HT is terminal

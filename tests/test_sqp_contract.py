@@ -254,13 +254,16 @@ def test_the_sparse_models_correction_solves_the_last_qp_with_rows_taken_at_the_
     """``MultipleShootingModel.correction`` (HPIPM), as the condensed one: the last QP (its
     Hessian blocks, the NLP's gradient) with the rows ``g(v + d) - A d``, where ``g`` and
     ``A`` come from CasADi on the whole NLP (not the model's stage Functions), checked
-    against qrqp on that QP assembled here; the corrected step leaves the curved row
-    (the end effector's reach) far less than the plain one."""
+    against qrqp on that QP assembled here (a row of the commands among them); the
+    corrected step leaves the curved row (the end effector's reach) far less than the
+    plain one."""
     x8 = load_robot("x8-3dof")
     pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
     pb.add_task(EndEffectorTracking(Constant([0.6, 0.4, 0.3])), weight=10.0)
     pb.add_task(ControlRate(), weight=0.1, level=None)
     pb.add_constraint(UserConstraint("ee_near", _reach_squared, 0.0, 0.2**2))
+    speed = UserConstraint("speed", lambda st: ca.sumsqr(st.u[:3]), 0.0, 4.0, uses_command=True)
+    pb.add_constraint(speed)
     strat = Weighted(pb, "sqp", {"codegen": False, "qpsol": "hpipm", "seed": "none"})
     tr, backend = strat.transcription, strat.solvers[0].backend
     model = backend.model

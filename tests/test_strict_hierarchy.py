@@ -5,12 +5,13 @@ clearance)."""
 import numpy as np
 import pytest
 
+from aeromanip.errors import ConfigError
 from aeromanip.experiment.closed_loop import simulate
 from aeromanip.experiment.scenario import load_scenarios
 from aeromanip.nmpc.constraints import Bounds, Clearance
 from aeromanip.nmpc.controller import Controller
 from aeromanip.nmpc.problem import Problem
-from aeromanip.nmpc.strategies import REGULARIZER_SCALE
+from aeromanip.nmpc.strategies import REGULARIZER_SCALE, Hierarchical
 from aeromanip.nmpc.transcription import Transcription
 from aeromanip.references import Constant, Lissajous
 from aeromanip.robot.kinematics import Kinematics
@@ -102,6 +103,33 @@ def test_the_regulariser_weighs_a_share_in_the_higher_level_and_all_of_it_in_the
         assert lv1.objective == pytest.approx(full, rel=1e-9)
         excess[scale] = lv0.cost - floor
     assert 0 < excess[REGULARIZER_SCALE] < 0.03 * excess[1.0]
+
+
+@pytest.mark.parametrize("scale", [0.0, -0.1, 1.0 + 1e-9, 1.5])
+def test_a_regularizer_scale_outside_zero_to_one_is_refused_before_anything_is_built(scale):
+    """The API's own check (the scenario file's is in ``test_validation``): a share in
+    (0, 1] of the regularisers' weight; 0 would leave the higher levels unregularised,
+    above 1 would make them weigh more than in the last level."""
+    with pytest.raises(ConfigError, match=r"regularizer_scale: must be in \(0, 1\]"):
+        Hierarchical(problem(), backend="ipopt", regularizer_scale=scale)
+
+
+@pytest.mark.parametrize("scale", [1e-6, 1.0])
+def test_a_regularizer_scale_at_the_edges_of_zero_to_one_is_taken(scale):
+    """Taken as given: at any plan, level 0's control-rate cost is ``scale`` times the
+    last level's (which weighs it in full), and each level's own task at full weight."""
+    pb = problem()
+    hierarchy = Hierarchical(pb, backend="ipopt", regularizer_scale=scale)
+    first, last = (s.tr for s in hierarchy.solvers)
+    rng = np.random.default_rng(3)
+    w = rng.normal(scale=0.2, size=first.w.numel())
+    p = first.parameters(X0, np.full(7, 0.1), pb.stage_params(0.0))
+    names = [e.name for e in pb.entries]
+    rate, tracking = names.index("control_rate"), names.index("tracking")
+    C0, C1 = first.costs(w, p), last.costs(w, p)
+    assert C1[rate].sum() > 1e-3
+    assert C0[rate].sum() == pytest.approx(scale * C1[rate].sum(), rel=1e-12)
+    assert C0[tracking].sum() == pytest.approx(C1[tracking].sum(), rel=1e-12)
 
 
 def test_the_stagewise_mode_lets_the_lower_level_take_its_tolerance():
