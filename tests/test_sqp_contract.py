@@ -220,21 +220,7 @@ def test_the_second_order_correction_solves_the_last_qp_with_rows_taken_at_the_f
     CasADi's qrqp on that QP built here; near a solution whose curved row (the end
     effector's horizontal reach) binds, the corrected step leaves it far less than the
     plain one (second order)."""
-    x8 = load_robot("x8-3dof")
-    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
-    pb.add_task(EndEffectorTracking(Constant([0.6, 0.4, 0.3])), weight=10.0)
-    pb.add_task(ControlRate(), weight=0.1, level=None)
-
-    pb.add_constraint(UserConstraint("ee_near", _reach_squared, 0.0, 0.2**2))
-    strat = Weighted(pb, "sqp", {"codegen": False, "qpsol": "daqp", "seed": "none"})
-    tr, backend = strat.transcription, strat.solvers[0].backend
-    model = backend.model
-    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
-    sol = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
-    assert sol.success
-    v, lam_c, lam_v = model.start(sol.w, p, tr.lbg, tr.ubg, sol.lam_g, sol.lam_x, False)
-    v = v + 0.02 * np.random.default_rng(1).normal(size=v.size)  # near the solution
-    lin = model.linearize(v, p)
+    _, model, p, v, lin, lam_c, lam_v = _near_a_binding_reach("daqp")
     d = model.step(v, lin, lam_c, lam_v, p, False).d
     soc = model.correction(v, d, lin, p)
     assert soc.ok and np.count_nonzero(soc.lam_a) > 0  # the corrected rows bind
@@ -257,26 +243,13 @@ def test_the_sparse_models_correction_solves_the_last_qp_with_rows_taken_at_the_
     against qrqp on that QP assembled here (a row of the commands among them); the
     corrected step leaves the curved row (the end effector's reach) far less than the
     plain one."""
-    x8 = load_robot("x8-3dof")
-    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
-    pb.add_task(EndEffectorTracking(Constant([0.6, 0.4, 0.3])), weight=10.0)
-    pb.add_task(ControlRate(), weight=0.1, level=None)
-    pb.add_constraint(UserConstraint("ee_near", _reach_squared, 0.0, 0.2**2))
     speed = UserConstraint("speed", lambda st: ca.sumsqr(st.u[:3]), 0.0, 4.0, uses_command=True)
-    pb.add_constraint(speed)
-    strat = Weighted(pb, "sqp", {"codegen": False, "qpsol": "hpipm", "seed": "none"})
-    tr, backend = strat.transcription, strat.solvers[0].backend
-    model = backend.model
+    tr, model, p, v, lin, lam_c, lam_v = _near_a_binding_reach("hpipm", speed)
     assert isinstance(model, MultipleShootingModel)
-    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
-    sol = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
-    assert sol.success
-    v, lam_c, lam_v = model.start(sol.w, p, tr.lbg, tr.ubg, sol.lam_g, sol.lam_x, False)
-    v = v + 0.02 * np.random.default_rng(1).normal(size=v.size)  # near the solution
-    lin = model.linearize(v, p)
     d = model.step(v, lin, lam_c, lam_v, p, False).d
     soc = model.correction(v, d, lin, p)
-    assert soc.ok and np.abs(soc.lam_a[np.isinf(tr.ubg) | np.isfinite(tr.lbg)]).max() > 0
+    reach = (tr.lbg == 0.0) & (tr.ubg == 0.2**2)
+    assert soc.ok and np.abs(soc.lam_a[reach]).max() > 0  # the corrected reach binds
     base = lin.data["v"]  # the iterate clipped into the variable bounds (stage 0 pinned)
     rows = ca.Function("rows", [tr.w, tr.p], [tr.g, ca.jacobian(tr.g, tr.w)])
     A = np.asarray(rows(base, p)[1])
@@ -506,6 +479,27 @@ def test_an_sqp_solve_reports_its_qps_and_its_time(rti):
     assert len(qps) == 1 if rti else len(qps) >= 3
     assert 0.0 < res.solve_time_s <= wall
     assert res.status == ("RTI step" if rti else "Solve_Succeeded")
+
+
+def _near_a_binding_reach(qpsol: str, *constraints: UserConstraint) -> tuple:
+    """The end effector tracked toward a target beyond its reach limit (a curved row
+    that binds), solved by the SQP on ``qpsol``'s QP, and an iterate 0.02 (normal noise)
+    from that solution, linearised: ``tr, model, p, v, lin, lam_c, lam_v``."""
+    x8 = load_robot("x8-3dof")
+    pb = Problem(x8, 3, 0.5, Bounds.from_robot(x8))
+    pb.add_task(EndEffectorTracking(Constant([0.6, 0.4, 0.3])), weight=10.0)
+    pb.add_task(ControlRate(), weight=0.1, level=None)
+    for c in (UserConstraint("ee_near", _reach_squared, 0.0, 0.2**2), *constraints):
+        pb.add_constraint(c)
+    strat = Weighted(pb, "sqp", {"codegen": False, "qpsol": qpsol, "seed": "none"})
+    tr, backend = strat.transcription, strat.solvers[0].backend
+    model = backend.model
+    p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
+    sol = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
+    assert sol.success
+    v, lam_c, lam_v = model.start(sol.w, p, tr.lbg, tr.ubg, sol.lam_g, sol.lam_x, False)
+    v = v + 0.02 * np.random.default_rng(1).normal(size=v.size)  # near the solution
+    return tr, model, p, v, model.linearize(v, p), lam_c, lam_v
 
 
 def _reach_squared(st):
