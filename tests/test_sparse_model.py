@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from aeromanip.errors import ConfigError
+from aeromanip.experiment.scenario import load_scenarios
 from aeromanip.nmpc.backends.multiple_shooting import (
     CONVEX_TOL,
     MultipleShootingModel,
@@ -164,8 +165,8 @@ def test_the_sparse_models_hpipm_has_its_limits_and_prints_nothing(
 def test_hpipm_options_are_tried_on_hpipm_and_auto_checks_both_solvers():
     """``qpsol = "hpipm"``: its own options pass, an unknown one or a value of the wrong type
     is one line naming it; ``"auto"`` may use either QP solver (dense up to
-    ``condense_max_horizon``, sparse beyond), so its options must suit both, whatever that
-    horizon."""
+    ``condense_max_horizon``, sparse beyond), so without a horizon its options must suit
+    both, whatever that limit."""
     SqpBackend.check_options({"qpsol": "hpipm", "qpsol_options": {"hpipm": {"iter_max": 30}}})
     with pytest.raises(ConfigError, match=r"^solver_options\.qpsol_options: hpipm rejects "
                        r"them: Unknown option: no_such$"):  # fmt: skip
@@ -179,6 +180,26 @@ def test_hpipm_options_are_tried_on_hpipm_and_auto_checks_both_solvers():
         with pytest.raises(ConfigError, match=rf"^solver_options\.qpsol_options: {other} "
                            rf"rejects them: Unknown option: {own}$"):  # fmt: skip
             SqpBackend.check_options(opts)
+
+
+@pytest.mark.parametrize(("horizon", "taken"), [(12, False), (13, True), (50, True)])
+def test_auto_at_a_known_horizon_checks_the_qp_solver_it_picks(horizon, taken):
+    """With the horizon known (a scenario's, or the transcription's when the backend is
+    built), ``"auto"``'s options need suit only the solver picked there: HPIPM's options
+    are taken beyond ``condense_max_horizon`` (12) and refused by DAQP up to it, in one
+    line, from the scenario file as from the API."""
+    opts = {"qpsol_options": {"hpipm": {"iter_max": 30}}}
+    sets = [f"controller.horizon={horizon}", "controller.backend='sqp'",
+            "controller.solver_options.qpsol_options={hpipm={iter_max=30}}"]  # fmt: skip
+    if taken:
+        SqpBackend.check_options(opts, horizon)
+        load_scenarios("flight", sets)
+        return
+    one_line = r"^solver_options\.qpsol_options: daqp rejects them: Unknown option: hpipm$"
+    with pytest.raises(ConfigError, match=one_line):
+        SqpBackend.check_options(opts, horizon)
+    with pytest.raises(ConfigError, match=one_line):
+        load_scenarios("flight", sets)
 
 
 def test_an_unknown_sqp_option_is_named_with_every_known_one():

@@ -179,7 +179,7 @@ def _controller(t: Table, robot: RobotSpec) -> ControllerSettings:
         if strategy != "hierarchical":
             hierarchy = {}  # a weighted variant of a hierarchical scenario: not used
     solver_options = dict(ct.table("solver_options", {}).data)
-    backend_cls.check_options(solver_options)  # before anything is built
+    backend_cls.check_options(solver_options, horizon)  # before anything is built
     ct.resolved["solver_options"] = solver_options
     ct.done()
     return ControllerSettings(

@@ -57,9 +57,10 @@ class Backend(ABC):
     ) -> None: ...
 
     @classmethod
-    def check_options(cls, options: Mapping[str, Any]) -> None:
+    def check_options(cls, options: Mapping[str, Any], horizon: int | None = None) -> None:
         """Raise ``ConfigError`` (one line naming the key) for options this backend
-        cannot take; called before anything is built. By default: any table."""
+        cannot take at ``horizon`` steps (any horizon if ``None``); called before anything
+        is built. By default: any table."""
         if not isinstance(options, Mapping):
             raise ConfigError(f"solver_options: must be a table, got {options!r}")
 

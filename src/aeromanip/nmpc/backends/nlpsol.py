@@ -50,10 +50,10 @@ class NlpBackend(Backend):
         return dict(IPOPT_OPTIONS)
 
     @classmethod
-    def check_options(cls, options: Mapping[str, Any]) -> None:
+    def check_options(cls, options: Mapping[str, Any], horizon: int | None = None) -> None:
         """Options the plugin knows, of the right types: tried on a one-variable NLP
-        (cheap: nothing is compiled), errors in one line naming the solver."""
-        super().check_options(options)
+        (cheap: nothing is compiled), errors in one line naming the solver (any horizon)."""
+        super().check_options(options, horizon)
         bad = [k for k in options if not isinstance(k, str)]
         if bad:
             raise ConfigError(f"solver_options: keys must be strings, got {bad[0]!r}")

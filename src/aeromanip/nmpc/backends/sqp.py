@@ -181,7 +181,7 @@ class SqpBackend(Backend):
     def __init__(
         self, transcription: Transcription, options: Mapping[str, Any] | None = None
     ) -> None:
-        self.opts = self.checked_options(options)
+        self.opts = self.checked_options(options, transcription.N)
         self.tr = transcription
         self.qpsol = self.pick_qp(self.opts, transcription.N)
         if self.qpsol == "hpipm":
@@ -202,10 +202,13 @@ class SqpBackend(Backend):
         return "daqp" if horizon <= opts["condense_max_horizon"] else "hpipm"
 
     @classmethod
-    def checked_options(cls, options: Mapping[str, Any] | None) -> dict[str, Any]:
+    def checked_options(
+        cls, options: Mapping[str, Any] | None, horizon: int | None = None
+    ) -> dict[str, Any]:
         """The defaults updated with ``options``; an unknown key or a bad value is a
         ``ConfigError`` naming the key, the value and what is allowed (checked before
-        anything is built)."""
+        anything is built). ``qpsol_options`` must suit the QP solver ``qpsol`` picks at
+        ``horizon`` steps (with ``"auto"`` and no horizon: both it may pick)."""
         if options is not None and not isinstance(options, Mapping):
             raise ConfigError(f"solver_options: must be a table, got {options!r}")
         unknown = set(options or {}) - set(DEFAULTS)
@@ -219,7 +222,8 @@ class SqpBackend(Backend):
             allowed = check(opts[key])
             if allowed:
                 raise ConfigError(f"solver_options.{key}: {opts[key]!r} is not {allowed}")
-        for qpsol in {cls.pick_qp(opts, 1), cls.pick_qp(opts, 10**6)}:
+        horizons = (1, 10**6) if horizon is None else (horizon,)
+        for qpsol in {cls.pick_qp(opts, n) for n in horizons}:
             if qpsol == "hpipm":
                 check_hpipm_options(opts["qpsol_options"])
             else:
@@ -227,9 +231,9 @@ class SqpBackend(Backend):
         return opts
 
     @classmethod
-    def check_options(cls, options: Mapping[str, Any]) -> None:
+    def check_options(cls, options: Mapping[str, Any], horizon: int | None = None) -> None:
         """See ``checked_options``."""
-        cls.checked_options(options)
+        cls.checked_options(options, horizon)
 
     def solve(
         self,
