@@ -13,11 +13,8 @@ import pytest
 
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.scenario import load_scenarios
-from aeromanip.nmpc.backends.multiple_shooting import (
-    CONVEX_TOL,
-    MultipleShootingModel,
-    _convexified,
-)
+from aeromanip.nmpc.backends.kkt import CONVEX_TOL, convexified_blocks
+from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel
 from aeromanip.nmpc.backends.qp import QpResult
 from aeromanip.nmpc.backends.sqp import (
     DEFAULTS,
@@ -486,7 +483,7 @@ def test_an_indefinite_exact_hessian_is_reflected_before_hpipm_sees_it():
 def test_the_convexity_tolerance_is_relative_to_the_largest_entry_and_at_least_absolute(
     largest, lowest, reflected
 ):
-    """``_convexified``'s test: a block is indefinite below ``-CONVEX_TOL`` times the stage
+    """``convexified_blocks``' test: a block is indefinite below ``-CONVEX_TOL`` times the stage
     blocks' largest entry, or ``-CONVEX_TOL`` where that is below 1; the blocks are given
     their eigenvalues' absolute values (checked by NumPy) or returned as they are."""
     q = np.linalg.qr(np.random.default_rng(7).normal(size=(3, 3)))[0]
@@ -494,7 +491,7 @@ def test_the_convexity_tolerance_is_relative_to_the_largest_entry_and_at_least_a
     stage = ((q * lam) @ q.T)[None]
     assert np.abs(stage).max() <= largest  # the largest entry is at most the top eigenvalue
     terminal = np.eye(3)
-    Hs, HT = _convexified(stage, terminal)
+    Hs, HT = convexified_blocks(stage, terminal)
     if reflected:
         np.testing.assert_allclose(Hs[0], (q * np.abs(lam)) @ q.T, atol=1e-9 * largest)
         assert np.linalg.eigvalsh(Hs[0]).min() == pytest.approx(-lowest, rel=1e-3)

@@ -1,6 +1,6 @@
-"""HPIPM's options for the SQP's sparse QP (``multiple_shooting``): its residual
-tolerance and iterations by the kind of SQP, the user's options over them, and a check
-that HPIPM takes them."""
+"""HPIPM for the SQP's sparse QP (``multiple_shooting``): its options (the residual
+tolerance and iterations by the kind of SQP, the user's options over them), a check
+that HPIPM takes them, and the solver called on a QP's nonzeros."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import casadi as ca
 
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends.base import casadi_message
-from aeromanip.nmpc.backends.codegen import quiet_stdout
+from aeromanip.nmpc.backends.codegen import Buffered, quiet_stdout
 
 # HPIPM (robust mode) reaches residuals of 1e-8 on these QPs in ~8 iterations, but rarely
 # 1e-9 or below: then it runs all its iterations (at N = 50 ~1 ms each). A converged SQP
@@ -64,3 +64,23 @@ def check_hpipm_options(options: dict[str, Any]) -> None:
         raise ConfigError(
             f"solver_options.qpsol_options: hpipm rejects them: {casadi_message(e)}"
         ) from None
+
+
+def hpipm_solver(H_sp: ca.Sparsity, A_sp: ca.Sparsity, opts: dict[str, Any], tag: str) -> Buffered:
+    """An HPIPM solver of the QP with Hessian and row sparsities ``H_sp``, ``A_sp`` and
+    CasADi ``conic`` options ``opts``, called through an MX Function of the nonzeros
+    (CasADi's buffer interface would keep feeding HPIPM the first call's data); ``tag``
+    names it. Outputs: x, lam_a, lam_x, cost."""
+    nw, ng = H_sp.size1(), A_sp.size1()
+    with quiet_stdout():
+        qp = ca.conic(f"aeromanip_hpipm_{tag}", "hpipm", {"h": H_sp, "a": A_sp}, opts)
+    hn, an = ca.MX.sym("h", H_sp.nnz()), ca.MX.sym("a", A_sp.nnz())
+    vec = {n: ca.MX.sym(n, m) for n, m in (("g", nw), ("lba", ng), ("uba", ng),
+           ("lbx", nw), ("ubx", nw))}  # fmt: skip
+    out = qp(h=ca.MX(H_sp, hn), a=ca.MX(A_sp, an), **vec)
+    f = ca.Function(
+        f"aeromanip_hpipm_call_{tag}",
+        [hn, an, *vec.values()],
+        [out["x"], out["lam_a"], out["lam_x"], out["cost"]],
+    )
+    return Buffered(f)

@@ -10,6 +10,7 @@ import numpy as np
 
 CONVEXIFY_DECADES = 5  # penalties rho tried on the active normals: base * 10**(0..4)
 EIGEN_FLOOR = 1e-6  # reflected eigenvalues kept above this share of the largest (or 1e-3)
+CONVEX_TOL = 1e-9  # an eigenvalue below -tol x the largest entry: an indefinite block
 
 
 def is_positive_definite(H: np.ndarray) -> bool:
@@ -61,3 +62,21 @@ def complementarity(g: np.ndarray, lb: np.ndarray, ub: np.ndarray, lam: np.ndarr
     dist = np.where(lam > 0, ub - g, np.where(lam < 0, lb - g, 0.0))
     c = np.abs(lam * dist).max()
     return float(c) if np.isfinite(c) else np.inf
+
+
+def convexified_blocks(
+    stage_blocks: np.ndarray, terminal_block: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The stage (``(N, n, n)``) and terminal Hessian blocks as they are if all are
+    positive semi-definite (to ``CONVEX_TOL`` of the stage blocks' largest entry), else
+    each with its eigenvalues' absolute values (one eigendecomposition per block)."""
+    lam_s, vec_s = np.linalg.eigh(stage_blocks)
+    lam_t, vec_t = np.linalg.eigh(terminal_block)
+    scale = max(1.0, float(np.abs(stage_blocks).max(initial=0.0)))
+    if min(lam_s.min(initial=0.0), lam_t.min(initial=0.0)) >= -CONVEX_TOL * scale:
+        return stage_blocks, terminal_block
+
+    def reflected(lam: np.ndarray, vec: np.ndarray) -> np.ndarray:
+        return (vec * np.abs(lam)[..., None, :]) @ np.swapaxes(vec, -1, -2)
+
+    return reflected(lam_s, vec_s), reflected(lam_t, vec_t)

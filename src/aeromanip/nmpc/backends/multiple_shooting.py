@@ -21,16 +21,15 @@ import casadi as ca
 import numpy as np
 
 from aeromanip.errors import ConfigError
-from aeromanip.nmpc.backends.codegen import Buffered, compiled_all, quiet_stdout
-from aeromanip.nmpc.backends.hpipm import hpipm_options
-from aeromanip.nmpc.backends.kkt import complementarity, l1
+from aeromanip.nmpc.backends.codegen import Buffered, compiled_all
+from aeromanip.nmpc.backends.hpipm import hpipm_options, hpipm_solver
+from aeromanip.nmpc.backends.kkt import complementarity, convexified_blocks, l1
 from aeromanip.nmpc.backends.qp import QpResult
 from aeromanip.nmpc.backends.qp_model import Linearization
 from aeromanip.nmpc.transcription import COUPLING, Transcription
 
 QP_FEASIBILITY = 1e-6  # a QP step keeps its rows and bounds to this (relative to 1 + |d|)
 MAX_STEP = 1e3  # [m, rad, m/s, rad/s] a longer step comes from an indefinite, unbounded QP
-CONVEX_TOL = 1e-9  # an eigenvalue below -tol x the largest entry: an indefinite block
 
 
 def _rows_gauss_newton(cost_rows: list[tuple[int, ca.SX]], s: ca.SX, lam: ca.SX) -> ca.SX:
@@ -178,31 +177,15 @@ class MultipleShootingModel:
         kind = "rti" if self.opts["rti"] else "sqp"
         user = self.opts["qpsol_options"]
         own = hpipm_options(kind, user, self.opts["tol"])
-        self.qp = self._hpipm(own, "")
+        self.qp = hpipm_solver(self.H_sp, self.A_sp, own, f"{N}")
         # after a line search that nearly failed, the QPs of the solve are solved to the
         # tightest tolerance (``step(accurate=True)``); the same solver if that is its own
         tightest = hpipm_options(kind, user)
-        self.qp_accurate = self.qp if tightest == own else self._hpipm(tightest, "accurate_")
-
-    def _hpipm(self, opts: dict[str, Any], tag: str) -> Buffered:
-        """An HPIPM solver of this model's QP with CasADi ``conic`` options ``opts``, called
-        through an MX Function of the nonzeros (CasADi's buffer interface would keep
-        feeding HPIPM the first call's data)."""
-        N = self.N
-        with quiet_stdout():
-            qp = ca.conic(
-                f"aeromanip_hpipm_{tag}{N}", "hpipm", {"h": self.H_sp, "a": self.A_sp}, opts
-            )
-        hn, an = ca.MX.sym("h", self.H_sp.nnz()), ca.MX.sym("a", self.A_sp.nnz())
-        vec = {n: ca.MX.sym(n, m) for n, m in (("g", self.nw), ("lba", self.ng),
-               ("uba", self.ng), ("lbx", self.nw), ("ubx", self.nw))}  # fmt: skip
-        out = qp(h=ca.MX(self.H_sp, hn), a=ca.MX(self.A_sp, an), **vec)
-        f = ca.Function(
-            f"aeromanip_hpipm_{tag}call_{N}",
-            [hn, an, *vec.values()],
-            [out["x"], out["lam_a"], out["lam_x"], out["cost"]],
+        self.qp_accurate = (
+            self.qp
+            if tightest == own
+            else hpipm_solver(self.H_sp, self.A_sp, tightest, f"accurate_{N}")
         )
-        return Buffered(f)
 
     # -- evaluation ----------------------------------------------------------------------
     def _split(self, v: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -398,7 +381,7 @@ class MultipleShootingModel:
         qp = self.qp_accurate if accurate else self.qp
         blocks = self._hessian_blocks(lin, lam_c, p, exact)
         if exact:  # HPIPM would not descend on an indefinite block
-            blocks = _convexified(*blocks)
+            blocks = convexified_blocks(*blocks)
         res = self._qp(qp, lin, *blocks)
         huge = np.abs(res.d).max(initial=0.0) > MAX_STEP  # unbounded: an indefinite QP
         if exact and (not res.ok or huge or float(lin.grad @ res.d) > 0.0):
@@ -476,21 +459,3 @@ class MultipleShootingModel:
         """The iterate is the NLP's variable vector (stage 0 pinned); multipliers as they are."""
         lbw, ubw = self._bounds(p)
         return np.clip(v, lbw, ubw), lam_c, lam_v
-
-
-def _convexified(
-    stage_blocks: np.ndarray, terminal_block: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The stage (``(N, n, n)``) and terminal Hessian blocks as they are if all are
-    positive semi-definite (to ``CONVEX_TOL`` of the stage blocks' largest entry), else
-    each with its eigenvalues' absolute values (one eigendecomposition per block)."""
-    lam_s, vec_s = np.linalg.eigh(stage_blocks)
-    lam_t, vec_t = np.linalg.eigh(terminal_block)
-    scale = max(1.0, float(np.abs(stage_blocks).max(initial=0.0)))
-    if min(lam_s.min(initial=0.0), lam_t.min(initial=0.0)) >= -CONVEX_TOL * scale:
-        return stage_blocks, terminal_block
-
-    def reflected(lam: np.ndarray, vec: np.ndarray) -> np.ndarray:
-        return (vec * np.abs(lam)[..., None, :]) @ np.swapaxes(vec, -1, -2)
-
-    return reflected(lam_s, vec_s), reflected(lam_t, vec_t)
