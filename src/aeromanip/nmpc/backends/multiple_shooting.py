@@ -402,10 +402,7 @@ class MultipleShootingModel:
         qp, blocks = self._last_qp
         base = lin.data["v"]
         step = v + d - base  # the QP's own step, from the clipped iterate
-        lbw, ubw = self._bounds(p)
-        Z, U, P, zN, pN = self._split(np.clip(base + step, lbw, ubw), p)
-        c, cT = self.f_merit(Z, U, P)[1].copy(), self.t_merit(zN, pN)[1].copy()
-        rows = self._rows_values(c, cT, base + step) - self._a_times(lin, step)
+        rows = self._cost_and_rows(base + step, p)[1] - self._a_times(lin, step)
         res = self._qp(qp, replace(lin, c=rows), *blocks)
         res.d += base - v
         return res
@@ -445,13 +442,17 @@ class MultipleShootingModel:
 
     def merit(self, v: np.ndarray, p: np.ndarray) -> tuple[float, float]:
         """Cost and l1 row violation at ``v``."""
+        f, g = self._cost_and_rows(v, p)
+        return f, l1(g, self.lbg, self.ubg)
+
+    def _cost_and_rows(self, v: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray]:
+        """Cost and rows ``g`` at ``v`` clipped into the variable bounds."""
         lbw, ubw = self._bounds(p)
         v = np.clip(v, lbw, ubw)
         Z, U, P, zN, pN = self._split(v, p)
         f, c = (a.copy() for a in self.f_merit(Z, U, P))
         fT, cT = self.t_merit(zN, pN)
-        g = self._rows_values(c, cT, v)
-        return float(f.sum() + fT[0]), l1(g, self.lbg, self.ubg)
+        return float(f.sum() + fT[0]), self._rows_values(c, cT, v)
 
     def result(
         self, v: np.ndarray, p: np.ndarray, lam_c: np.ndarray, lam_v: np.ndarray
