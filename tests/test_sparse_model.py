@@ -179,6 +179,15 @@ def test_hpipm_options_are_tried_on_hpipm_and_auto_checks_both_solvers():
             SqpBackend.check_options(opts)
 
 
+def test_a_refused_key_inside_hpipm_options_is_named():
+    """HPIPM's own refusal of a key inside ``hpipm = {...}`` says only "Unknown option":
+    the check names the key and its value, the first refused one among good ones."""
+    opts = {"qpsol": "hpipm", "qpsol_options": {"hpipm": {"iter_max": 30, "iter_maxx": 3}}}
+    with pytest.raises(ConfigError, match=r"^solver_options\.qpsol_options: hpipm rejects "
+                       r"them: .*\(hpipm\.iter_maxx = 3\)$"):  # fmt: skip
+        SqpBackend.check_options(opts)
+
+
 @pytest.mark.parametrize(("horizon", "taken"), [(12, False), (13, True), (50, True)])
 def test_auto_at_a_known_horizon_checks_the_qp_solver_it_picks(horizon, taken):
     """With the horizon known (a scenario's, or the transcription's when the backend is

@@ -52,7 +52,22 @@ def hpipm_options(
 
 
 def check_hpipm_options(options: dict[str, Any]) -> None:
-    """HPIPM takes ``options`` (tried on a one-step OCP QP)."""
+    """HPIPM takes ``options`` (tried on a one-step OCP QP); a refused key inside
+    ``hpipm = {...}`` is named (HPIPM's own message does not name it)."""
+    refusal = _hpipm_refusal(options)
+    if refusal is None:
+        return
+    inner = options.get("hpipm")
+    if isinstance(inner, Mapping):
+        for key, value in inner.items():
+            if _hpipm_refusal({"hpipm": {key: value}}) is not None:
+                refusal += f" (hpipm.{key} = {value!r})"
+                break
+    raise ConfigError(f"solver_options.qpsol_options: hpipm rejects them: {refusal}")
+
+
+def _hpipm_refusal(options: dict[str, Any]) -> str | None:
+    """HPIPM's message if it refuses ``options`` on a one-step OCP QP, else ``None``."""
     opts = hpipm_options("sqp", options)
     H = ca.DM.eye(3)
     A = ca.DM([[-1.0, -1.0, 1.0]])  # x1 = x0 + u0
@@ -61,9 +76,8 @@ def check_hpipm_options(options: dict[str, Any]) -> None:
             qp = ca.conic("aeromanip_check", "hpipm", {"h": H.sparsity(), "a": A.sparsity()}, opts)
             qp(h=H, g=0.0, a=A, lba=0.0, uba=0.0, lbx=-1.0, ubx=1.0)
     except RuntimeError as e:
-        raise ConfigError(
-            f"solver_options.qpsol_options: hpipm rejects them: {casadi_message(e)}"
-        ) from None
+        return casadi_message(e)
+    return None
 
 
 def hpipm_solver(H_sp: ca.Sparsity, A_sp: ca.Sparsity, opts: dict[str, Any], tag: str) -> Buffered:
