@@ -192,6 +192,14 @@ class Table:
         self.resolved[name] = [c.resolved for c in children]
         return children
 
+    def unread(self) -> list[str]:
+        """The keys of the table not read so far, in table order."""
+        return [str(k) for k in self.data if k not in self._used]
+
+    def read_keys(self) -> frozenset[str]:
+        """The keys read so far (present or not)."""
+        return frozenset(self._used)
+
     def done(self) -> None:
         """Raise on any key that was never read (a typo would otherwise pass silently)."""
         unknown = sorted(set(self.data) - self._used)

@@ -1,3 +1,51 @@
 """The real-time runtime: the controller on the wall clock, driving a vehicle through a
 transport (``transport``: the interface; ``loop``: the control loop; ``follower`` and
-``streamer``: setpoints between solves; ``session``: the run directory)."""
+``streamer``: setpoints between solves; ``session``: the run directory).
+
+Exports:
+
+* ``RealtimeFlight`` (a scenario's controller flown against a ``Transport`` on the wall
+  clock), ``FlightStats``;
+* ``Transport`` (the vehicle link's interface), ``ArmInterface``, ``VehicleState``,
+  ``Setpoint``, ``LinkError``;
+* ``PlanFollower``, ``Plan`` (the plan between solves), ``Streamer`` (setpoints at the
+  stream rate);
+* ``fly_session`` (a flight into a run directory), ``SessionResult``;
+* ``one_scenario`` (the one scenario, or variant, to fly).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+# each import on first use: the session's plots load matplotlib
+_LAZY = {
+    "FlightStats": "aeromanip.runtime.loop",
+    "RealtimeFlight": "aeromanip.runtime.loop",
+    "ArmInterface": "aeromanip.runtime.transport",
+    "LinkError": "aeromanip.runtime.transport",
+    "Setpoint": "aeromanip.runtime.transport",
+    "Transport": "aeromanip.runtime.transport",
+    "VehicleState": "aeromanip.runtime.transport",
+    "Plan": "aeromanip.runtime.follower",
+    "PlanFollower": "aeromanip.runtime.follower",
+    "Streamer": "aeromanip.runtime.streamer",
+    "SessionResult": "aeromanip.runtime.session",
+    "fly_session": "aeromanip.runtime.session",
+    "one_scenario": "aeromanip.runtime.scenario",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str) -> Any:
+    """The exports, each imported on first use (``_LAZY``)."""
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The module's names and its exports."""
+    return sorted([*globals(), *__all__])

@@ -5,4 +5,45 @@
 tasks (``tasks``) into ``DIR/runs/<id>/`` and resumes what is missing; ``results`` writes
 ``DIR/results.csv``; ``plots`` draws each metric against each swept key and a Pareto plot.
 Ray is imported only when a campaign starts (the ``sweep`` extra).
+
+Exports:
+
+* ``make_spec`` (grid, random draws, seeds -> ``SweepSpec``), ``Run``;
+* ``plan_campaign`` (a scenario and a spec -> ``Plan``: every run built, nothing flown);
+* ``run_campaign`` (a plan flown on Ray into a directory -> ``Outcome``), ``Settings``
+  (workers, cluster address, figures...);
+* ``read_results`` (``DIR/results.csv`` as rows), ``plot_sweep``.
 """
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+# each import on first use: the campaign's plots load matplotlib
+_LAZY = {
+    "Run": "aeromanip.sweep.spec",
+    "SweepSpec": "aeromanip.sweep.spec",
+    "make_spec": "aeromanip.sweep.spec",
+    "Plan": "aeromanip.sweep.plan",
+    "plan_campaign": "aeromanip.sweep.plan",
+    "Outcome": "aeromanip.sweep.campaign",
+    "Settings": "aeromanip.sweep.campaign",
+    "run_campaign": "aeromanip.sweep.campaign",
+    "read_results": "aeromanip.sweep.results",
+    "plot_sweep": "aeromanip.sweep.plots",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str) -> Any:
+    """The exports, each imported on first use (``_LAZY``)."""
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The module's names and its exports."""
+    return sorted([*globals(), *__all__])

@@ -1,4 +1,14 @@
-"""UAM tasks (paper Sec. IV): each a residual whose weighted square is a cost term."""
+"""UAM tasks (paper Sec. IV): each a residual whose weighted square is a cost term.
+
+Exports:
+
+* ``Task`` (the base: ``residual(stage)``; its ``from_table`` reads a scenario's options
+  from the constructor's parameters), ``Stage`` (the symbols a residual sees), the
+  registry ``TASKS`` (a scenario's ``kind``, or ``"package.module:Class"``);
+* the built-ins ``EndEffectorTracking`` (h1), ``CogAlignment`` (h2), ``CogVelocity``
+  (h3), ``Manipulability`` (h4), ``ConditionNumber`` (h5), ``ControlRate`` (the
+  regulariser) and ``Posture``.
+"""
 
 from aeromanip.tasks.base import TASKS, Stage, Task
 from aeromanip.tasks.cog import CogAlignment, CogVelocity

@@ -7,7 +7,8 @@ Residuals are built symbolically from the kinematics Functions, once per problem
 
 Tasks are registered by name in ``TASKS`` (one module each); a scenario's
 ``[tasks.NAME] kind = ...`` names one, or a ``Task`` subclass of your own as
-``"package.module:Class"``, built by its ``from_table``.
+``"package.module:Class"``, built by its ``from_table`` (by default from the
+constructor's keyword parameters: ``aeromanip.tasks.options``).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from aeromanip.config import Table
 from aeromanip.references import Reference
 from aeromanip.registry import Registry
 from aeromanip.robot.kinematics import Kinematics
+from aeromanip.tasks.options import constructor_options
 
 
 @dataclass(frozen=True)
@@ -90,8 +92,9 @@ class Task(ABC):
     def from_table(cls, table: Table, reference: Reference) -> Task:
         """Build from a scenario's ``[tasks.NAME]`` table (its own options only: the
         weights and level are read by the scenario). ``reference`` is the scenario's
-        end-effector reference. By default the task takes no option."""
-        return cls()
+        end-effector reference. By default the table's keys are the constructor's keyword
+        parameters, checked against their annotations (``aeromanip.tasks.options``)."""
+        return cls(**constructor_options(cls, table, reference))
 
 
 TASKS: Registry[Task] = Registry("task", "aeromanip.tasks", Task)

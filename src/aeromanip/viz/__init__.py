@@ -5,6 +5,9 @@ PNG still; ``write_mcap(run_dir)`` writes ``run.mcap`` (transforms, robot descri
 scene, every log column, stamped with simulation time). Both read only the run directory
 (``log.csv``, ``meta.json``, ``robot.xml``, ``robot.urdf``), so any saved run can be
 replayed. The packages they need are the ``viz`` extra: ``pip install 'aeromanip[viz]'``.
+
+Exports: ``replay`` (-> ``ReplayResult``), ``write_mcap``, ``write_mcaps`` (every run of
+a directory with variants).
 """
 
 from aeromanip.viz.mcap_log import write_mcap, write_mcaps
