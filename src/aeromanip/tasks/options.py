@@ -33,10 +33,11 @@ _SCALARS = (bool, int, float, str)
 def constructor_options(cls: type, table: Table, reference: Reference | None) -> dict[str, Any]:
     """The keyword arguments for ``cls(...)`` read from ``table`` (module docstring)."""
     params = _parameters(cls)
-    allowed = ", ".join(f"{name} ({_describe(p.annotation)})" for name, p in params.items())
+    options = {name: p for name, p in params.items() if not _is_reference(p)}
+    allowed = ", ".join(f"{name} ({_describe(p.annotation)})" for name, p in options.items())
     for key in table.unread():
-        if key not in params or _is_reference(params[key]):
-            close = difflib.get_close_matches(key, [*params, *table.read_keys()], n=1)
+        if key not in options:
+            close = difflib.get_close_matches(key, [*options, *table.read_keys()], n=1)
             hint = f"; did you mean {close[0]!r}?" if close else ""
             takes = f"takes {allowed}" if allowed else "takes no option"
             raise ConfigError(f"{table.key(key)}: unknown key ({cls.__name__} {takes}{hint})")
