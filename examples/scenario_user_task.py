@@ -33,7 +33,7 @@ def main() -> None:
     rmse = float(np.sqrt(np.mean(np.sum((ee - ref)[settled] ** 2, axis=1))))
     print(
         f"user task: z_ref {height.z_ref:.3f} m, final z {log.column('z')[-1]:.3f} m, "
-        f"EE RMSE {1e3 * rmse:.2f} mm"
+        f"EE RMSE {1e3 * rmse:.3f} mm"
     )
 
 

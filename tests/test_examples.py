@@ -6,6 +6,7 @@ Each example runs as a user runs it (``python examples/NAME.py``, a fresh interp
 its last line carries its key figure.
 """
 
+import ast
 import json
 import os
 import re
@@ -173,3 +174,20 @@ def test_mavlink_loop_flies_the_sitl_and_its_truth_follows_the_reference(tmp_pat
     truth_rmse_mm = 1e3 * float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
     assert mission.sum() > 50 and truth_rmse_mm < 20.0
     assert truth_rmse_mm < 3 * rmse_mm + 2.0  # as measured over the link: the same flight
+
+
+def test_every_example_is_in_the_gallery_and_says_how_to_run_it():
+    gallery = (EXAMPLES.parent / "docs" / "gallery.md").read_text()
+    files = sorted(EXAMPLES.glob("*.py")) + sorted((EXAMPLES / "scenarios").glob("*.toml"))
+    assert len(files) >= 10
+    for path in files:
+        assert f"examples/{path.relative_to(EXAMPLES)}" in gallery, path.name
+        if path.suffix == ".py":
+            doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+            assert doc.startswith("Example: ") and "Run: ``python examples/" in doc, path.name
+            assert "from aeromanip." not in re.sub(
+                r"from aeromanip\.(nmpc|sim|experiment|references|tasks|sweep|viz|runtime|"
+                r"mavlink|robot) import",
+                "",
+                path.read_text(),
+            ), f"{path.name} imports from a module inside a sub-package"
