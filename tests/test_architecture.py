@@ -40,7 +40,7 @@ TOP = {"__init__", "__main__", "cli"}  # the public API and the command line: an
 
 
 def module_name(path: Path) -> str:
-    """``src/aeromanip/nmpc/backends/sqp.py`` -> ``aeromanip.nmpc.backends.sqp``."""
+    """``src/aeromanip/nmpc/backends/sqp/solver.py`` -> ``aeromanip.nmpc.backends.sqp.solver``."""
     parts = path.relative_to(SRC.parent).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 

@@ -2,7 +2,7 @@
 checked against a NumPy re-implementation of the documented formula or ``numpy.linalg``.
 
 Truths: ``violation``/``complementarity`` written out by hand (CasADi sign convention),
-the convexification rule of ``kkt.py`` re-done in NumPy (``rho = base 10^k``, the smallest
+the convexification rule of ``convexify.py`` re-done in NumPy (``rho = base 10^k``, the smallest
 that makes ``H + rho C'C`` positive definite; otherwise ``|lambda|`` floored at
 ``EIGEN_FLOOR max(|lambda|max, 1e-3)``), and ``numpy.linalg.eigvalsh`` for the spectra.
 """
@@ -13,13 +13,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from aeromanip.nmpc.backends.kkt import (
-    CONVEXIFY_DECADES,
-    EIGEN_FLOOR,
-    complementarity,
-    convexified,
-    violation,
-)
+from aeromanip.nmpc.backends.sqp.convexify import CONVEXIFY_DECADES, EIGEN_FLOOR, convexified
+from aeromanip.nmpc.backends.sqp.optimality import complementarity, violation
 from aeromanip.robot.spectral import EPS_ISO, condition_number, extreme_eigenvalues
 
 LB, UB = np.array([0.0, -1.0]), np.array([1.0, 1.0])
@@ -43,7 +38,7 @@ def test_complementarity_uses_the_bound_of_the_multiplier_sign():
 
 
 def numpy_convexified(H, C, fixed):
-    """The rule of ``kkt.convexified``, re-done with ``eigvalsh`` as the PD test."""
+    """The rule of ``convexify.convexified``, re-done with ``eigvalsh`` as the PD test."""
 
     def pd(M):
         return np.linalg.eigvalsh(M).min() > 0

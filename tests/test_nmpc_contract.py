@@ -26,9 +26,9 @@ from aeromanip.errors import ConfigError, InfeasibleProblemError, StateError
 from aeromanip.nmpc.backends import codegen
 from aeromanip.nmpc.backends.base import NlpResult, casadi_message
 from aeromanip.nmpc.backends.cache import CacheEntry
-from aeromanip.nmpc.backends.qp import SOLVERS as QP_SOLVERS
-from aeromanip.nmpc.backends.qp import DenseQp
-from aeromanip.nmpc.backends.sqp import (
+from aeromanip.nmpc.backends.sqp.dense_qp import SOLVERS as QP_SOLVERS
+from aeromanip.nmpc.backends.sqp.dense_qp import DenseQp
+from aeromanip.nmpc.backends.sqp.solver import (
     DEFAULTS,
     SqpBackend,
 )

@@ -1,4 +1,4 @@
-"""``nmpc.backends.qp.DenseQp`` against an independent brute-force QP solver, in NumPy.
+"""``nmpc.backends.sqp.dense_qp.DenseQp`` against an independent brute-force QP solver, in NumPy.
 
 Truth: for ``min 1/2 d'Hd + g'd  s.t.  lba <= A d <= uba,  lbx <= d <= ubx`` with ``H``
 positive definite, the optimum is the unique KKT point. With linear constraints a KKT
@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from aeromanip.errors import ConfigError
-from aeromanip.nmpc.backends.qp import DenseQp
+from aeromanip.nmpc.backends.sqp.dense_qp import DenseQp
 
 SOLVERS = ("daqp", "qpoases")
 D_TOL = 1e-6  # relative, on the step

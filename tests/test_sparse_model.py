@@ -13,13 +13,13 @@ import pytest
 
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.scenario import load_scenarios
-from aeromanip.nmpc.backends.kkt import CONVEX_TOL, convexified_blocks
-from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel
-from aeromanip.nmpc.backends.qp import QpResult
-from aeromanip.nmpc.backends.sqp import (
+from aeromanip.nmpc.backends.sqp.convexify import CONVEX_TOL, convexified_blocks
+from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
+from aeromanip.nmpc.backends.sqp.solver import (
     DEFAULTS,
     SqpBackend,
 )
+from aeromanip.nmpc.backends.sqp.sparse_qp import SparseQpModel
 from aeromanip.nmpc.constraints import Bounds, Clearance
 from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.strategies import Hierarchical, Weighted
@@ -39,7 +39,7 @@ def sparse_model(small_problem):
         opts["seed"] = "none"
     strat = Weighted(small_problem, "sqp", opts)
     tr, model = strat.transcription, strat.solvers[0].backend.model
-    assert type(model).__name__ == "MultipleShootingModel"
+    assert type(model).__name__ == "SparseQpModel"
     p = tr.parameters(X0, np.zeros(7), small_problem.stage_params(0.0))
     model.start(tr.pack(*rest(small_problem), np.zeros(7)), p, tr.lbg, tr.ubg, None, None, True)
     return small_problem, tr, model, p
@@ -107,7 +107,7 @@ def test_the_sparse_model_takes_the_multipliers_only_when_both_come(sparse_model
 def test_a_converged_sqps_qp_residuals_are_a_hundredth_of_its_tolerance_within_limits():
     """HPIPM's residual tolerance: 1e-2 times a converged SQP's ``tol``, no looser than
     1e-8 and no tighter than 1e-10; an RTI's is 1e-8 whatever its ``tol``."""
-    from aeromanip.nmpc.backends.hpipm import qp_tolerance
+    from aeromanip.nmpc.backends.sqp.hpipm import qp_tolerance
 
     assert qp_tolerance("sqp", 1e-6) == pytest.approx(1e-8)  # the default tol
     assert qp_tolerance("sqp", 1e-7) == pytest.approx(1e-9)
@@ -126,7 +126,7 @@ def test_the_sparse_models_hpipm_has_its_limits_and_prints_nothing(
     SQP's or an RTI's: iterations ``HPIPM_LIMITS``, residuals from the SQP's ``tol``), the
     user's HPIPM options added key by key (one given keeps the others); a solve prints
     nothing (no timings)."""
-    from aeromanip.nmpc.backends.hpipm import HPIPM_LIMITS
+    from aeromanip.nmpc.backends.sqp.hpipm import HPIPM_LIMITS
 
     made, real = [], ca.conic
 
@@ -237,7 +237,7 @@ def sparse_clearance_point(accel: bool):
 
 
 def test_the_sparse_models_exact_hessian_blocks_are_the_nlps_lagrangian_hessian():
-    """``MultipleShootingModel._hessian_blocks(exact=True)``: each stage's block (its
+    """``SparseQpModel._hessian_blocks(exact=True)``: each stage's block (its
     state and command) and the terminal one are the blocks of the NLP's Lagrangian
     Hessian ``f + lam' g`` (CasADi's derivatives; the model rows are linear, the problem
     couples no two stages), plus the regularisation; with the clearance rows (curved), the
@@ -257,7 +257,7 @@ def test_the_sparse_models_exact_hessian_blocks_are_the_nlps_lagrangian_hessian(
 
 
 def test_the_sparse_models_row_products_are_the_nlps_jacobian_times_a_step():
-    """``MultipleShootingModel._a_times(lin, d)``, assembled block by block (the dynamics'
+    """``SparseQpModel._a_times(lin, d)``, assembled block by block (the dynamics'
     gaps, each stage's rows, the terminal rows), is ``J d`` with ``J`` CasADi's Jacobian
     of the NLP's rows at the linearisation point; with the clearance rows (curved)."""
     tr, model, p, w, lin = sparse_clearance_point(accel=False)
@@ -277,11 +277,11 @@ def test_the_sparse_models_row_products_are_the_nlps_jacobian_times_a_step():
 @pytest.mark.parametrize("where", ["row upper", "row lower", "bound upper", "bound lower"])
 @pytest.mark.parametrize(("excess", "ok"), [(0.95, True), (1.05, False)])
 def test_the_sparse_models_qp_answer_is_checked_to_its_tolerance(where, excess, ok):
-    """``MultipleShootingModel._solved``: HPIPM's answer is accepted only if it keeps the
+    """``SparseQpModel._solved``: HPIPM's answer is accepted only if it keeps the
     linearised rows and the bounds to ``QP_FEASIBILITY (1 + |d|)``; here a step of 0.25
     crosses one of them by ``excess`` times that (1.25e-6). A step that is not finite is
     refused as such."""
-    model = object.__new__(MultipleShootingModel)
+    model = object.__new__(SparseQpModel)
     A = np.array([[1.0, 0.0], [0.0, 1.0]])
     model._a_times = lambda lin, d: A @ d
     far = np.full(2, 9.0)
@@ -304,7 +304,7 @@ def test_the_sparse_kkt_error_is_the_largest_part_and_ignores_pinned_variables()
     """Row complementarity, free variables' bound complementarity and stationarity, each
     made the largest in turn; a pinned variable (``lbw = ubw``, e.g. the measured state)
     carries any multiplier: neither its stationarity nor its complementarity counts."""
-    model = object.__new__(MultipleShootingModel)
+    model = object.__new__(SparseQpModel)
     model._at_lam = lambda lin, lam: np.array([lam[0], 0.0])  # one row: on variable 0
 
     def kkt(c, lam_c, v0, lam_v0, grad0):
@@ -348,7 +348,7 @@ def test_hpipm_solves_a_hierarchy_as_ipopt_does(mode):
     tr = hp.transcription
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
     w0 = tr.pack(*rest(pb), np.zeros(7))
-    assert type(hp.solvers[1].backend.model).__name__ == "MultipleShootingModel"
+    assert type(hp.solvers[1].backend.model).__name__ == "SparseQpModel"
     got = hp.solve(p, [w0, None])
     ref = Hierarchical(pb, mode=mode, backend="ipopt").solve(p, [w0, None])
     assert got.success and ref.success and got.status == ref.status == "ok"
@@ -417,11 +417,11 @@ def test_hpipm_refuses_the_hierarchy_mode_that_couples_every_stage():
     ],
 )
 def test_the_sparse_models_exact_step_falls_back_on_gauss_newton(exact_step, ok, kept):
-    """``MultipleShootingModel.step(exact=True)``: where the exact Hessian's QP fails,
+    """``SparseQpModel.step(exact=True)``: where the exact Hessian's QP fails,
     gives a step longer than ``MAX_STEP`` or one that does not descend (``grad'd > 0``),
     the Gauss-Newton QP's step is taken instead; either is moved by the iterate's clipping
     (``lin.data["v"] - v``). The two QPs are stand-ins returning the given steps."""
-    model = object.__new__(MultipleShootingModel)
+    model = object.__new__(SparseQpModel)
     gn_step = np.array([-0.05, 0.01])
     # positive definite stand-in blocks, told apart by their scale: 1 exact, 2 Gauss-Newton
     model._hessian_blocks = lambda lin, lam, p, exact: (
@@ -458,7 +458,7 @@ def test_an_indefinite_exact_hessian_is_reflected_before_hpipm_sees_it():
     regularised higher level such QPs ran to HPIPM's iteration limit), so each block is
     given its eigenvalues' absolute values (the same eigenvectors), checked against NumPy's
     eigendecomposition; within the tolerance the blocks go as they are."""
-    model = object.__new__(MultipleShootingModel)
+    model = object.__new__(SparseQpModel)
     rng = np.random.default_rng(5)
     q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
     stage = (q * np.array([2.0, 0.5, -1e-3])) @ q.T

@@ -184,7 +184,7 @@ def test_residual_mode_keeps_the_primary_optimum_and_improves_the_secondary():
 def test_convexified_hessian_keeps_the_step_on_the_active_set():
     """Indefinite H, positive definite on null(C): the penalty makes it positive definite
     and the equality-constrained QP's step is that of the exact H (KKT solved directly)."""
-    from aeromanip.nmpc.backends.kkt import convexified
+    from aeromanip.nmpc.backends.sqp.convexify import convexified
 
     rng = np.random.default_rng(3)
     n, m = 8, 3
@@ -224,7 +224,7 @@ def test_acceptable_level_ends_a_solve_that_cannot_reach_tol(strategy):
 def test_multiplier_shift_maps_each_row_to_its_twin_one_stage_on(mode):
     """The NLP's and the SQP's shift maps: a row moves to the row of the same kind and
     place one stage on (never across kinds); rows without a twin keep their place."""
-    from aeromanip.nmpc.backends.sqp import SqpBackend
+    from aeromanip.nmpc.backends.sqp.solver import SqpBackend
     from aeromanip.nmpc.transcription import Transcription
 
     pb = make_problem()
@@ -377,7 +377,7 @@ def test_the_exact_hessian_is_made_convex_on_the_bounds_with_multipliers(
     stagewise_level, monkeypatch
 ):
     """An exact Hessian with negative curvature along command ``j``, whose bound has a
-    multiplier (no row has): ``kkt.convexified``'s penalty on that variable, the smallest
+    multiplier (no row has): ``convexify.convexified``'s penalty on that variable, the smallest
     of ``1, 10, 100 ...`` times the diagonal's scale that makes it positive definite
     (here 10: ``-1 + 10``), not a penalty elsewhere nor the eigenvalues' reflection."""
     model, v, p = stagewise_level
@@ -410,10 +410,10 @@ def test_damping_adds_its_share_of_the_largest_diagonal_entry(stagewise_level, m
 def test_the_dense_kkt_error_is_the_largest_of_its_three_parts():
     """Row complementarity, bound complementarity and stationarity, each made the
     largest in turn on a one-variable, one-row stand-in."""
-    from aeromanip.nmpc.backends.condensed import CondensedModel
-    from aeromanip.nmpc.backends.qp_model import Linearization
+    from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
+    from aeromanip.nmpc.backends.sqp.qp_model import Linearization
 
-    model = object.__new__(CondensedModel)
+    model = object.__new__(CondensedQpModel)
     model.lbU, model.ubU = np.array([-1.0]), np.array([1.0])
     A = np.array([[1.0]])
 

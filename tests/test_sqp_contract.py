@@ -17,9 +17,8 @@ import numpy as np
 import pytest
 
 from aeromanip.errors import ConfigError
-from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel
-from aeromanip.nmpc.backends.qp import QpResult
-from aeromanip.nmpc.backends.sqp import (
+from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
+from aeromanip.nmpc.backends.sqp.solver import (
     DEFAULTS,
     EXACT_FROM_ITERATION,
     HESSIANS,
@@ -31,6 +30,7 @@ from aeromanip.nmpc.backends.sqp import (
     _number,
     _one_of,
 )
+from aeromanip.nmpc.backends.sqp.sparse_qp import SparseQpModel
 from aeromanip.nmpc.constraints import Bounds, Clearance, UserConstraint
 from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.strategies import Weighted
@@ -120,7 +120,7 @@ def test_auto_hessian_goes_exact_at_the_first_short_step_or_the_seventh_iteratio
 
 
 def test_auto_hessian_on_the_sparse_model_goes_exact_near_a_solution_or_late():
-    sparse = object.__new__(MultipleShootingModel)  # only its type matters here
+    sparse = object.__new__(SparseQpModel)  # only its type matters here
     assert not _go_exact(sparse, False, 1.0, 1)
     assert _go_exact(sparse, False, 1.0, 2)  # a full step from the second iteration
     assert not _go_exact(sparse, True, 0.5, 2)  # back to Gauss-Newton after a short one
@@ -215,7 +215,7 @@ def test_sqp_returns_multipliers_that_make_its_answer_stationary(small_problem, 
 
 
 def test_the_second_order_correction_solves_the_last_qp_with_rows_taken_at_the_full_step():
-    """``CondensedModel.correction``: the last QP (its Hessian and gradient) with each row's
+    """``CondensedQpModel.correction``: the last QP (its Hessian and gradient) with each row's
     value taken at ``v + d`` less its linear part, ``c(v + d) - A d``, checked against
     CasADi's qrqp on that QP built here; near a solution whose curved row (the end
     effector's horizontal reach) binds, the corrected step leaves it far less than the
@@ -237,7 +237,7 @@ def test_the_second_order_correction_solves_the_last_qp_with_rows_taken_at_the_f
 
 
 def test_the_sparse_models_correction_solves_the_last_qp_with_rows_taken_at_the_full_step():
-    """``MultipleShootingModel.correction`` (HPIPM), as the condensed one: the last QP (its
+    """``SparseQpModel.correction`` (HPIPM), as the condensed one: the last QP (its
     Hessian blocks, the NLP's gradient) with the rows ``g(v + d) - A d``, where ``g`` and
     ``A`` come from CasADi on the whole NLP (not the model's stage Functions), checked
     against qrqp on that QP assembled here (a row of the commands among them); the
@@ -245,7 +245,7 @@ def test_the_sparse_models_correction_solves_the_last_qp_with_rows_taken_at_the_
     plain one."""
     speed = UserConstraint("speed", lambda st: ca.sumsqr(st.u[:3]), 0.0, 4.0, uses_command=True)
     tr, model, p, v, lin, lam_c, lam_v = _near_a_binding_reach("hpipm", speed)
-    assert isinstance(model, MultipleShootingModel)
+    assert isinstance(model, SparseQpModel)
     d = model.step(v, lin, lam_c, lam_v, p, False).d
     soc = model.correction(v, d, lin, p)
     reach = (tr.lbg == 0.0) & (tr.ubg == 0.2**2)
@@ -429,7 +429,7 @@ def test_sqp_options_are_checked_as_given_and_blas_threads_set_only_when_asked(m
         SqpBackend.checked_options("x")
     with pytest.raises(ConfigError, match=r"^solver_options\.tol: "):
         SqpBackend.check_options({"tol": -1.0})
-    from aeromanip.nmpc.backends import sqp as sqp_module
+    from aeromanip.nmpc.backends.sqp import solver as sqp_module
 
     calls = []
     monkeypatch.setattr(sqp_module, "limit_blas_threads", calls.append)

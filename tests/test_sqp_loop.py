@@ -10,10 +10,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from aeromanip.nmpc.backends import sqp as sqp_module
-from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel
-from aeromanip.nmpc.backends.qp_model import Linearization, QpResult
-from aeromanip.nmpc.backends.sqp import (
+from aeromanip.nmpc.backends.sqp import solver as sqp_module
+from aeromanip.nmpc.backends.sqp.qp_model import Linearization, QpResult
+from aeromanip.nmpc.backends.sqp.solver import (
     ACCURATE_QPS_BELOW,
     DAMPING_START,
     DEFAULTS,
@@ -21,6 +20,7 @@ from aeromanip.nmpc.backends.sqp import (
     PENALTY_MARGIN,
     SqpBackend,
 )
+from aeromanip.nmpc.backends.sqp.sparse_qp import SparseQpModel
 
 
 class ScriptedModel:
@@ -68,7 +68,7 @@ class ScriptedModel:
         return v, lam_c, lam_v
 
 
-class ScriptedSparseModel(ScriptedModel, MultipleShootingModel):
+class ScriptedSparseModel(ScriptedModel, SparseQpModel):
     """The same script, of the sparse model's type (``_go_exact`` has a rule of its own
     for it)."""
 

@@ -8,7 +8,7 @@ import pytest
 
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends.base import NlpResult
-from aeromanip.nmpc.backends.sqp import SEED_FLOOR, SqpBackend, _cheaper
+from aeromanip.nmpc.backends.sqp.solver import SEED_FLOOR, SqpBackend, _cheaper
 from aeromanip.nmpc.constraints import Bounds
 from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.strategies import Weighted

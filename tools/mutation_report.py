@@ -55,7 +55,8 @@ NOT_COUNTED = {"skipped", "caught by type check", "not checked"}
 
 
 def module_of(name: str) -> str:
-    """``aeromanip.nmpc.backends.sqp.xǁSqpBackendǁsolve`` -> ``nmpc/backends/sqp.py``."""
+    """``aeromanip.nmpc.backends.sqp.solver.xǁSqpBackendǁsolve`` ->
+    ``nmpc/backends/sqp/solver.py``."""
     mod = re.split(r"\.x[_ǁ]", name, maxsplit=1)[0]
     return mod.removeprefix("aeromanip.").replace(".", "/") + ".py"
 

@@ -30,7 +30,8 @@ NOT_COUNTED = {34, 37}  # skipped, caught by the type checker
 
 
 def mutants(prefix: str) -> dict[str, list[str]]:
-    """Module (``nmpc/backends/qp.py``) -> its mutant names, from mutmut's ``.meta`` files."""
+    """Module (``nmpc/backends/sqp/dense_qp.py``) -> its mutant names, from mutmut's
+    ``.meta`` files."""
     out = {}
     for meta in sorted((ROOT / prefix).rglob("*.py.meta")):
         names = sorted(json.loads(meta.read_text())["exit_code_by_key"])

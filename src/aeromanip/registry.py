@@ -2,11 +2,11 @@
 
 A registry maps a name (``"tracking"``, ``"waypoints"``, ``"sqp"``, ``"physics"``) to a
 class. Built-in classes register themselves with ``@REGISTRY.register("name")`` in their
-own module, and the registry imports every module of its package the first time it is
-asked for a name, so that adding a built-in is one new file. A user's class needs no
-registration at all: ``"package.module:Class"`` (in a scenario TOML or any call that
-takes a kind) is imported with ``importlib`` and checked to be a subclass of the
-registry's base class.
+own module, and the registry imports every module of its package (sub-packages included)
+the first time it is asked for a name, so that adding a built-in is one new file. A
+user's class needs no registration at all: ``"package.module:Class"`` (in a scenario TOML
+or any call that takes a kind) is imported with ``importlib`` and checked to be a subclass
+of the registry's base class.
 """
 
 from __future__ import annotations
@@ -50,12 +50,13 @@ class Registry(Generic[T]):
         return add
 
     def _discover(self) -> None:
-        """Import every module of ``package`` once (their decorators fill the registry)."""
+        """Import every module of ``package`` and its sub-packages once (their decorators
+        fill the registry)."""
         if self._discovered:
             return
         self._discovered = True
         pkg = importlib.import_module(self.package)
-        for info in pkgutil.iter_modules(pkg.__path__, f"{self.package}."):
+        for info in pkgutil.walk_packages(pkg.__path__, f"{self.package}."):
             importlib.import_module(info.name)
 
     def names(self) -> tuple[str, ...]:

@@ -39,7 +39,7 @@ from aeromanip.bench.controller import (
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.scenario import Scenario
 from aeromanip.nmpc.backends.codegen import limit_blas_threads
-from aeromanip.nmpc.backends.sqp import DEFAULTS as SQP_DEFAULTS
+from aeromanip.nmpc.backends.sqp.solver import DEFAULTS as SQP_DEFAULTS
 from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.transcription import Transcription
 

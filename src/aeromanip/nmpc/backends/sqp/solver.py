@@ -13,10 +13,10 @@ How it is built, and why:
   that active set (Newton's convergence kept); only where that fails are the
   eigenvalues reflected.
 * **The QP by the horizon's length.** Short horizons: the model ``x[k+1] = x[k] + dt u[k]``
-  is linear, so the NLP is condensed exactly onto the commands (``condensed``: a dense
+  is linear, so the NLP is condensed exactly onto the commands (``condensed_qp``: a dense
   QP, DAQP on the rows that may bind). Long horizons: every stage keeps its variables
   and the sparse OCP-structured QP is solved by HPIPM's Riccati-based interior point
-  (``multiple_shooting``: stage Functions mapped over the horizon, so generated code,
+  (``sparse_qp``: stage Functions mapped over the horizon, so generated code,
   build time and memory do not grow with N). ``qpsol="auto"`` picks the first up to
   ``condense_max_horizon`` steps. An interior point solves a QP only to a tolerance:
   HPIPM's residuals are 1e-2 of the SQP's ``tol`` (1e-8 at the default), and its
@@ -63,13 +63,13 @@ import numpy as np
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult, make_backend
 from aeromanip.nmpc.backends.codegen import limit_blas_threads
-from aeromanip.nmpc.backends.condensed import CondensedModel
-from aeromanip.nmpc.backends.hpipm import check_hpipm_options
-from aeromanip.nmpc.backends.kkt import l1, violation
-from aeromanip.nmpc.backends.multiple_shooting import MultipleShootingModel
-from aeromanip.nmpc.backends.qp import SOLVERS as QP_SOLVERS
-from aeromanip.nmpc.backends.qp import DenseQp, QpResult
-from aeromanip.nmpc.backends.qp_model import Linearization, QpModel
+from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
+from aeromanip.nmpc.backends.sqp.dense_qp import SOLVERS as QP_SOLVERS
+from aeromanip.nmpc.backends.sqp.dense_qp import DenseQp, QpResult
+from aeromanip.nmpc.backends.sqp.hpipm import check_hpipm_options
+from aeromanip.nmpc.backends.sqp.optimality import l1, violation
+from aeromanip.nmpc.backends.sqp.qp_model import Linearization, QpModel
+from aeromanip.nmpc.backends.sqp.sparse_qp import SparseQpModel
 from aeromanip.nmpc.transcription import Transcription
 
 DEFAULTS: dict[str, Any] = {
@@ -185,9 +185,9 @@ class SqpBackend(Backend):
         self.tr = transcription
         self.qpsol = self.pick_qp(self.opts, transcription.N)
         if self.qpsol == "hpipm":
-            self.model: QpModel = MultipleShootingModel(transcription, self.opts)
+            self.model: QpModel = SparseQpModel(transcription, self.opts)
         else:
-            self.model = CondensedModel(transcription, {**self.opts, "qpsol": self.qpsol})
+            self.model = CondensedQpModel(transcription, {**self.opts, "qpsol": self.qpsol})
         if self.opts["blas_threads"] is not None:
             limit_blas_threads(int(self.opts["blas_threads"]))
         self._ipopt: Backend | None = None  # the seed, built on first use
@@ -385,10 +385,10 @@ def _go_exact(model: QpModel, exact: bool, alpha: float, it: int) -> bool:
     indefinite, so near a solution (after a full step; back to Gauss-Newton after a
     shortened one) and from the ``EXACT_FROM_ITERATION``-th iteration on, where
     Gauss-Newton may never converge (a large residual against an active state bound: it
-    cycled to the iteration limit); ``MultipleShootingModel.step`` falls back to
+    cycled to the iteration limit); ``SparseQpModel.step`` falls back to
     Gauss-Newton for an exact QP that fails or does not descend.
     """
-    if isinstance(model, MultipleShootingModel):
+    if isinstance(model, SparseQpModel):
         return (alpha == 1.0 and it >= 2) or it >= EXACT_FROM_ITERATION
     return exact or alpha < 1.0 or it >= EXACT_FROM_ITERATION
 

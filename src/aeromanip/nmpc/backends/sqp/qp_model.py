@@ -1,7 +1,7 @@
-"""What the SQP loop (``nmpc.backends.sqp``) needs from a QP model of the NLP.
+"""What the SQP loop (``nmpc.backends.sqp.solver``) needs from a QP model of the NLP.
 
-Two models: ``CondensedModel`` (the commands only, a dense QP: fastest for short
-horizons) and ``MultipleShootingModel`` (every stage's variables, a sparse OCP-structured
+Two models: ``CondensedQpModel`` (the commands only, a dense QP: fastest for short
+horizons) and ``SparseQpModel`` (every stage's variables, a sparse OCP-structured
 QP solved by HPIPM: cost and generated code linear in the horizon). The loop sees a
 vector of variables ``v``, the constraint rows ``c(v)`` with bounds, multipliers of the
 rows (``lam_c``) and of the variable bounds (``lam_v``), CasADi's sign convention.
@@ -14,7 +14,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from aeromanip.nmpc.backends.qp import QpResult
+from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
 
 
 @dataclass

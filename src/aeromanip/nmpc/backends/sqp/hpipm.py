@@ -1,4 +1,4 @@
-"""HPIPM for the SQP's sparse QP (``multiple_shooting``): its options (the residual
+"""HPIPM for the SQP's sparse QP (``sparse_qp``): its options (the residual
 tolerance and iterations by the kind of SQP, the user's options over them), a check
 that HPIPM takes them, and the solver called on a QP's nonzeros."""
 

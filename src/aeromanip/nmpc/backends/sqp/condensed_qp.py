@@ -4,9 +4,9 @@ The model ``z[k+1] = A z[k] + B u[k]`` (``nmpc.model``) is linear, so the states
 affine in the commands: the multiple-shooting NLP is solved in ``U`` (``N nx``
 variables), the gap rows holding exactly. The state bounds become linear rows of ``U``.
 The dense residuals, rows and their Jacobians in ``U`` are one compiled Function: fast
-for short horizons, but its code grows like ``N^2`` (use ``MultipleShootingModel``
+for short horizons, but its code grows like ``N^2`` (use ``SparseQpModel``
 beyond a dozen steps). The QP is solved by a dual active-set method on the rows that may
-bind (``nmpc.backends.qp``).
+bind (``dense_qp``).
 """
 
 from __future__ import annotations
@@ -17,13 +17,14 @@ import casadi as ca
 import numpy as np
 
 from aeromanip.nmpc.backends.codegen import Buffered, compiled_all
-from aeromanip.nmpc.backends.kkt import complementarity, convexified, l1
-from aeromanip.nmpc.backends.qp import DenseQp, QpResult
-from aeromanip.nmpc.backends.qp_model import Linearization
+from aeromanip.nmpc.backends.sqp.convexify import convexified
+from aeromanip.nmpc.backends.sqp.dense_qp import DenseQp, QpResult
+from aeromanip.nmpc.backends.sqp.optimality import complementarity, l1
+from aeromanip.nmpc.backends.sqp.qp_model import Linearization
 from aeromanip.nmpc.transcription import Transcription, shift_map
 
 
-class CondensedModel:
+class CondensedQpModel:
     """The condensed QP model of a transcription (module docstring; ``qp_model.QpModel``).
 
     Args:
@@ -217,7 +218,7 @@ class CondensedModel:
         A: np.ndarray,
     ) -> np.ndarray:
         """The objective's Gauss-Newton Hessian, or its exact one ``Hf`` (if given) made
-        positive definite (``kkt.convexified``: a penalty on the active rows' normals,
+        positive definite (``convexify.convexified``: a penalty on the active rows' normals,
         which keeps the step on that active set); plus the Gauss-Newton curvature of the
         hierarchy's cost rows."""
         Hh = None

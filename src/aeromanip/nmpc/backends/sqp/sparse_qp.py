@@ -1,4 +1,4 @@
-"""The SQP's multiple-shooting model: every stage's variables, a sparse OCP QP (HPIPM).
+"""The SQP's sparse QP model: every stage's variables, an OCP-structured QP (HPIPM).
 
 The transcription's variables ``[z0, u0, z1, u1, ..., z_N]`` and rows (per stage: the
 gap rows first, then the path and hierarchy rows) are already in the order HPIPM's
@@ -22,10 +22,11 @@ import numpy as np
 
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends.codegen import Buffered, compiled_all
-from aeromanip.nmpc.backends.hpipm import hpipm_options, hpipm_solver
-from aeromanip.nmpc.backends.kkt import complementarity, convexified_blocks, l1
-from aeromanip.nmpc.backends.qp import QpResult
-from aeromanip.nmpc.backends.qp_model import Linearization
+from aeromanip.nmpc.backends.sqp.convexify import convexified_blocks
+from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
+from aeromanip.nmpc.backends.sqp.hpipm import hpipm_options, hpipm_solver
+from aeromanip.nmpc.backends.sqp.optimality import complementarity, l1
+from aeromanip.nmpc.backends.sqp.qp_model import Linearization
 from aeromanip.nmpc.transcription import COUPLING, Transcription
 
 QP_FEASIBILITY = 1e-6  # a QP step keeps its rows and bounds to this (relative to 1 + |d|)
@@ -42,7 +43,7 @@ def _rows_gauss_newton(cost_rows: list[tuple[int, ca.SX]], s: ca.SX, lam: ca.SX)
     return ca.densify(H)
 
 
-class MultipleShootingModel:
+class SparseQpModel:
     """The multiple-shooting QP model of a transcription (module docstring).
 
     Args:
@@ -345,7 +346,7 @@ class MultipleShootingModel:
         self, Hs: np.ndarray, HT: np.ndarray, v: np.ndarray, lam_c: np.ndarray, p: np.ndarray
     ) -> None:
         """Add to the Gauss-Newton blocks (in place) the curvature of the stagewise
-        hierarchy's cost rows, as ``CondensedModel._hessian`` does."""
+        hierarchy's cost rows, as ``CondensedQpModel._hessian`` does."""
         N, ns, nz = self.N, self.ns, self.nz
         Z, U, P, zN, pN = self._split(v, p)
         lam = self._stage_lams(lam_c)
@@ -397,7 +398,7 @@ class MultipleShootingModel:
         """The step ``d`` with a second-order correction: the last QP again, its rows'
         values taken at ``v + d`` (``c(v + d) - A d``), so that curved rows (the
         hierarchy's residuals, the clearance) hold to second order, as
-        ``CondensedModel.correction`` (the gap rows are linear: unchanged)."""
+        ``CondensedQpModel.correction`` (the gap rows are linear: unchanged)."""
         assert self._last_qp is not None, "correction() follows step()"
         qp, blocks = self._last_qp
         base = lin.data["v"]
