@@ -34,8 +34,8 @@ from aeromanip.nmpc.transcription import Transcription
 _LAZY = {
     "IpoptBackend": "aeromanip.nmpc.backends.nlpsol",
     "FatropBackend": "aeromanip.nmpc.backends.nlpsol",
-    "SqpBackend": "aeromanip.nmpc.backends.sqp",
-    "SqpRtiBackend": "aeromanip.nmpc.backends.sqp",
+    "SqpBackend": "aeromanip.nmpc.backends.sqp.solver",
+    "SqpRtiBackend": "aeromanip.nmpc.backends.sqp.solver",
 }
 
 __all__ = [
