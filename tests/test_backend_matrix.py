@@ -55,9 +55,9 @@ def same(a, b):
 
 
 KNOWN = {  # cases that fail today, each with its issue: they must start passing there
-    ("clearance", "", "fatrop"): "issue 14: fatrop fails from rest with the clearance binding",
+    ("clearance", "", "fatrop"): "fatrop fails from rest with the clearance binding",
     **{
-        (name, variant, "fatrop"): "issue 12: with the tracking level's regulariser at 10 %, "
+        (name, variant, "fatrop"): "with the tracking level's regulariser at 10 %, "
         "fatrop from rest lands in another local optimum, 0.9 % above IPOPT's at level 0"
         for name, variant in [
             ("waypoints", "hierarchical"),
