@@ -105,3 +105,25 @@ class Registry(Generic[T]):
                 f"(a {self.what} must derive from {self.base.__module__}.{self.base.__name__})"
             )
         return obj
+
+
+def lazy_exports(
+    package: str, table: dict[str, str], namespace: dict[str, object]
+) -> tuple[Callable[[str], object], Callable[[], list[str]]]:
+    """A package's ``__getattr__`` and ``__dir__`` for exports imported on first use.
+
+    Args:
+        package: the package's ``__name__`` (for the error of an unknown name).
+        table: export name -> the module that defines it.
+        namespace: the package's ``globals()`` (what ``dir()`` lists besides the exports).
+    """
+
+    def getattr_(name: str) -> object:
+        if name in table:
+            return getattr(importlib.import_module(table[name]), name)
+        raise AttributeError(f"module {package!r} has no attribute {name!r}")
+
+    def dir_() -> list[str]:
+        return sorted({*namespace, *table})
+
+    return getattr_, dir_

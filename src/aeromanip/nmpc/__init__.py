@@ -19,9 +19,6 @@ Exports:
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
-
 from aeromanip.nmpc.backends import BACKENDS, Backend, NlpResult, make_backend
 from aeromanip.nmpc.constraints import Bounds, Clearance, PathConstraint, UserConstraint
 from aeromanip.nmpc.controller import Command, Controller
@@ -29,6 +26,7 @@ from aeromanip.nmpc.model import RateModel
 from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.strategies import Hierarchical, LevelReport, StrategyResult, Weighted
 from aeromanip.nmpc.transcription import Transcription
+from aeromanip.registry import lazy_exports
 
 # the built-in backends' modules build solvers: imported when first named
 _LAZY = {
@@ -63,8 +61,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    """The exports imported on first use (``_LAZY``)."""
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY, globals())

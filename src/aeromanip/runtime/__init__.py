@@ -16,8 +16,7 @@ Exports:
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from aeromanip.registry import lazy_exports
 
 # each import on first use: the session's plots load matplotlib
 _LAZY = {
@@ -38,14 +37,4 @@ _LAZY = {
 
 __all__ = sorted(_LAZY)
 
-
-def __getattr__(name: str) -> Any:
-    """The exports, each imported on first use (``_LAZY``)."""
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    """The module's names and its exports."""
-    return sorted([*globals(), *__all__])
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY, globals())

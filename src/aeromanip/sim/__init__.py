@@ -12,9 +12,7 @@ Exports:
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
-
+from aeromanip.registry import lazy_exports
 from aeromanip.sim.base import SIMULATORS, Simulator
 from aeromanip.sim.feedback import FeedbackNoise
 from aeromanip.sim.flight_controller import FlightController, FlightGains, Mixer
@@ -39,8 +37,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    """The exports imported on first use (``_LAZY``)."""
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY, globals())
