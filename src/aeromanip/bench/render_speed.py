@@ -19,7 +19,7 @@ from aeromanip.experiment.runlog import RunLog
 from aeromanip.robot.loader import load_robot
 from aeromanip.robot.urdf_export import robot_to_urdf
 from aeromanip.sim.mjcf import robot_to_mjcf
-from aeromanip.viz.frames import FrameTree
+from aeromanip.viz.transforms import FrameTree
 from aeromanip.viz.gl import backend_name
 from aeromanip.viz.render import Panel
 from aeromanip.viz.runs import Trajectory, load_run
