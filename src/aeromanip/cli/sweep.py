@@ -21,9 +21,9 @@ from typing import TYPE_CHECKING, Any
 from aeromanip.errors import ConfigError
 
 if TYPE_CHECKING:  # the sweep package (and Ray) load when the command runs
+    from aeromanip.sweep.axes import SweepSpec
     from aeromanip.sweep.campaign import Outcome, Settings
     from aeromanip.sweep.plan import Plan
-    from aeromanip.sweep.axes import SweepSpec
 
 EXIT_RUNS_FAILED = 3
 MAX_WORKERS = 4096

@@ -32,7 +32,7 @@ _LAZY = {
     "Streamer": "aeromanip.runtime.streamer",
     "SessionResult": "aeromanip.runtime.session",
     "fly_session": "aeromanip.runtime.session",
-    "one_scenario": "aeromanip.runtime.scenario",
+    "one_scenario": "aeromanip.runtime.flight_scenario",
 }
 
 __all__ = sorted(_LAZY)

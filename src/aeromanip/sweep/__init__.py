@@ -1,9 +1,9 @@
 """Parameter sweeps and Monte-Carlo campaigns of scenarios on Ray (``aeromanip sweep``).
 
-``spec`` turns ``--grid`` / ``--random`` / ``--seeds`` into runs with stable ids;
+``axes`` turns ``--grid`` / ``--random`` / ``--seeds`` into runs with stable ids;
 ``campaign`` checks them, compiles each distinct problem once, fans the runs out as Ray
 tasks (``tasks``) into ``DIR/runs/<id>/`` and resumes what is missing; ``results`` writes
-``DIR/results.csv``; ``plots`` draws each metric against each swept key and a Pareto plot.
+``DIR/results.csv``; ``campaign_plots`` draws each metric against each swept key and a Pareto plot.
 Ray is imported only when a campaign starts (the ``sweep`` extra).
 
 Exports:
@@ -21,16 +21,16 @@ from aeromanip.registry import lazy_exports
 
 # each import on first use: the campaign's plots load matplotlib
 _LAZY = {
-    "Run": "aeromanip.sweep.spec",
-    "SweepSpec": "aeromanip.sweep.spec",
-    "make_spec": "aeromanip.sweep.spec",
+    "Run": "aeromanip.sweep.axes",
+    "SweepSpec": "aeromanip.sweep.axes",
+    "make_spec": "aeromanip.sweep.axes",
     "Plan": "aeromanip.sweep.plan",
     "plan_campaign": "aeromanip.sweep.plan",
     "Outcome": "aeromanip.sweep.campaign",
     "Settings": "aeromanip.sweep.campaign",
     "run_campaign": "aeromanip.sweep.campaign",
     "read_results": "aeromanip.sweep.results",
-    "plot_sweep": "aeromanip.sweep.plots",
+    "plot_sweep": "aeromanip.sweep.campaign_plots",
 }
 
 __all__ = sorted(_LAZY)

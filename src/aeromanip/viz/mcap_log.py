@@ -32,9 +32,9 @@ import numpy as np
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.runlog import META_FILE, RunLog
 from aeromanip.viz.dependencies import require
-from aeromanip.viz.transforms import WORLD, FrameTree
 from aeromanip.viz.layout import LAYOUT_FILE, foxglove_layout
 from aeromanip.viz.runs import URDF_FILE, SavedRun, box_bounds, load_run, run_dirs
+from aeromanip.viz.transforms import WORLD, FrameTree
 
 MCAP_FILE = "run.mcap"
 ATTACHED = {
