@@ -6,7 +6,7 @@ Run: ``python benchmarks/bench_controller.py [results.json]``
 import json
 import sys
 
-from aeromanip.bench.controller import bench_controller, format_controller
+from aeromanip.bench.controller_speed import bench_controller, format_controller
 
 if __name__ == "__main__":
     result = bench_controller()

@@ -6,7 +6,7 @@ Run: ``python benchmarks/bench_kinematics.py [results.json]``
 import json
 import sys
 
-from aeromanip.bench.kinematics import bench_kinematics, format_kinematics
+from aeromanip.bench.kinematics_speed import bench_kinematics, format_kinematics
 
 if __name__ == "__main__":
     results = {robot: bench_kinematics(robot) for robot in ("planar-2dof", "x8-3dof")}

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from aeromanip.bench.controller import bench_controller, format_controller
+from aeromanip.bench.controller_speed import bench_controller, format_controller
 from aeromanip.cli import main
 
 
@@ -101,7 +101,7 @@ def test_stress_cases_reach_ipopts_closed_loop_without_partial_steps():
     """Issue 14: with the clearance binding from rest, the seeded sqp loops end where
     IPOPT's do (they stopped at a local optimum 4x costlier before), RTI too; with the
     velocity bounds binding, the hierarchy's second level is solved at every step."""
-    from aeromanip.bench.controller import run_variant
+    from aeromanip.bench.controller_speed import run_variant
     from aeromanip.bench.stress import RTI_COST, SQP_COST, bench_stress, format_stress
 
     r = bench_stress(["clearance"], duration=5.0, warmup=1)

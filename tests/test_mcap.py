@@ -191,7 +191,7 @@ def test_errors_are_one_line(tmp_path, kinematic_run):
 
 def test_a_run_goes_on_without_the_viz_extra(kinematic_run, tmp_path, monkeypatch, capsys):
     from aeromanip.viz import export, mcap_log
-    from aeromanip.viz.errors import MissingExtraError
+    from aeromanip.viz.dependencies import MissingExtraError
 
     def missing(module, package, what):
         raise MissingExtraError(f"{what} needs the package {package!r}, not installed")

@@ -4,7 +4,7 @@ import pytest
 
 pytest.importorskip("do_mpc")
 
-from aeromanip.bench.controller import bench_scenario
+from aeromanip.bench.controller_speed import bench_scenario
 from aeromanip.bench.peer_dompc import EQUIV_RTOL, equivalence
 
 

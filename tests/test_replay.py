@@ -15,7 +15,7 @@ from aeromanip.errors import AeromanipError
 from aeromanip.experiment.runner import run_scenarios
 from aeromanip.experiment.scenario import load_scenarios
 from aeromanip.viz import gl, replay
-from aeromanip.viz.errors import RenderBackendError
+from aeromanip.viz.dependencies import RenderBackendError
 from aeromanip.viz.render import Panel
 from aeromanip.viz.replay import auto_speed, frame_times
 from aeromanip.viz.runs import load_run

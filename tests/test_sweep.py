@@ -21,10 +21,10 @@ import pytest
 from aeromanip.cli import main
 from aeromanip.sim.kinematic import KinematicSimulator
 from aeromanip.sweep import campaign as campaign_mod
+from aeromanip.sweep.axes import make_spec, parse_grid, parse_random
 from aeromanip.sweep.fanout import ProgressLine
 from aeromanip.sweep.plan import plan_campaign
 from aeromanip.sweep.results import read_results
-from aeromanip.sweep.spec import make_spec, parse_grid, parse_random
 
 ray = pytest.importorskip("ray")
 

@@ -29,7 +29,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from aeromanip.bench.controller import (
+from aeromanip.bench.controller_speed import (
     bench_scenario,
     closed_loop_score,
     closed_loop_steps,

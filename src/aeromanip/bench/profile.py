@@ -1,6 +1,6 @@
 """Where a controller step's time goes: compiled code, the QP solver, Python and NumPy.
 
-The bench's closed loop (``bench.controller``: the flight problem, ideal inner loop) is run
+The bench's closed loop (``bench.controller_speed``: the flight problem, ideal inner loop) is run
 for one variant with every ``Buffered`` Function call timed by its name: the QP solver
 (DAQP or HPIPM through CasADi), the model's compiled Functions (linearisation, merit,
 Hessian, multipliers, logged costs), and the IPOPT solve that seeds the SQP on a cold
@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from aeromanip.bench.controller import VARIANTS, _stepper, bench_scenario
+from aeromanip.bench.controller_speed import VARIANTS, _stepper, bench_scenario
 from aeromanip.nmpc.backends import codegen
 from aeromanip.nmpc.backends.codegen import limit_blas_threads
 from aeromanip.nmpc.backends.nlpsol import NlpBackend

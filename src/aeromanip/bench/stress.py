@@ -1,6 +1,6 @@
 """The controller under stress: binding bounds, a far start, the clearance binding.
 
-Each case is a closed loop of the ``flight`` problem (``bench.controller.KINDS``) flown
+Each case is a closed loop of the ``flight`` problem (``bench.controller_speed.KINDS``) flown
 by the weighted ``sqp``, ``sqp-rti`` and hierarchical ``sqp`` controllers and by IPOPT
 (warm-started, ``tol = 1e-10``) with the same strategy, in this one process; the nominal
 flight's hierarchical ``sqp`` is flown too, to scale the hierarchy's step times.
@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from aeromanip.bench.controller import KINDS, machine, run_variant
+from aeromanip.bench.controller_speed import KINDS, machine, run_variant
 from aeromanip.bench.shadow import REF_OPTIONS
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends.codegen import limit_blas_threads

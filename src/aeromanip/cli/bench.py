@@ -65,7 +65,7 @@ def _check_json_path(path: Path) -> None:
 
 def _bench_render() -> dict:
     """Replay rendering speed (needs the ``viz`` extra and an offscreen GL)."""
-    from aeromanip.bench.render import bench_render, format_render
+    from aeromanip.bench.render_speed import bench_render, format_render
 
     r = bench_render()
     print(format_render(r))
@@ -87,8 +87,8 @@ def _bench_peer(duration: float) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     """Measure and print (and write ``--json``)."""
-    from aeromanip.bench.controller import VARIANTS, bench_controller, format_controller
-    from aeromanip.bench.kinematics import bench_kinematics, format_kinematics
+    from aeromanip.bench.controller_speed import VARIANTS, bench_controller, format_controller
+    from aeromanip.bench.kinematics_speed import bench_kinematics, format_kinematics
 
     names = args.variant or list(VARIANTS)
     unknown = [n for n in names if n not in VARIANTS]

@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from aeromanip.errors import ConfigError
     from aeromanip.experiment.rundir import check_writable
     from aeromanip.mavlink.protocol import parse_link
-    from aeromanip.runtime.scenario import one_scenario
+    from aeromanip.runtime.flight_scenario import one_scenario
     from aeromanip.runtime.streamer import STREAM_HZ
 
     parse_link(args.link)

@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     from aeromanip.mavlink.protocol import parse_link
     from aeromanip.mavlink.sitl import STATE_HZ
     from aeromanip.mavlink.sitl_run import run_sitl
-    from aeromanip.runtime.scenario import one_scenario
+    from aeromanip.runtime.flight_scenario import one_scenario
 
     parse_link(args.link)
     state_hz = STATE_HZ if args.state_hz is None else args.state_hz

@@ -21,9 +21,9 @@ from typing import TYPE_CHECKING, Any
 from aeromanip.errors import ConfigError
 
 if TYPE_CHECKING:  # the sweep package (and Ray) load when the command runs
+    from aeromanip.sweep.axes import SweepSpec
     from aeromanip.sweep.campaign import Outcome, Settings
     from aeromanip.sweep.plan import Plan
-    from aeromanip.sweep.spec import SweepSpec
 
 EXIT_RUNS_FAILED = 3
 MAX_WORKERS = 4096
@@ -142,7 +142,7 @@ def spread(rows: list[dict[str, str]], metrics: list[str]) -> str:
 
 
 def _spec(args: argparse.Namespace) -> SweepSpec:
-    from aeromanip.sweep.spec import make_spec
+    from aeromanip.sweep.axes import make_spec
 
     _check_numbers(args)
     optional = {"random_seed": args.random_seed, "seed_key": args.seed_key}

@@ -29,9 +29,10 @@ from aeromanip.errors import ConfigError
 from aeromanip.experiment.closed_loop import make_controller
 from aeromanip.interrupts import RunInterrupted, deferred
 from aeromanip.interrupts import clear as clear_interrupts
+from aeromanip.sweep.axes import Run
+from aeromanip.sweep.campaign_plots import plot_sweep
 from aeromanip.sweep.fanout import MAX_RETRIES, ProgressLine, fan_out, ray_session
 from aeromanip.sweep.plan import Plan, scenario_hash
-from aeromanip.sweep.plots import plot_sweep
 from aeromanip.sweep.results import (
     FAILED_FILE,
     RESULTS_FILE,
@@ -42,7 +43,6 @@ from aeromanip.sweep.results import (
     write_failed,
     write_results,
 )
-from aeromanip.sweep.spec import Run
 from aeromanip.sweep.tasks import (
     DONE,
     FAILED,

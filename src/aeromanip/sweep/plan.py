@@ -20,7 +20,7 @@ from typing import Any
 
 from aeromanip.errors import AeromanipError, ConfigError
 from aeromanip.experiment.sources import scenario_source
-from aeromanip.sweep.spec import VARIANT_KEY, Run, SweepSpec, with_variants
+from aeromanip.sweep.axes import VARIANT_KEY, Run, SweepSpec, with_variants
 from aeromanip.sweep.tasks import build_run, one_line
 
 NOT_PROBLEM = (

@@ -23,7 +23,7 @@ from typing import Any
 
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.runlog import SUMMARY_FILE
-from aeromanip.sweep.spec import Run, toml_value
+from aeromanip.sweep.axes import Run, toml_value
 from aeromanip.sweep.tasks import DONE, FAILED, TASK_FILE, complete
 
 RESULTS_FILE = "results.csv"

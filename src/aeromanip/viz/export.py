@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from aeromanip.errors import AeromanipError
-from aeromanip.viz.errors import MissingExtraError, require
+from aeromanip.viz.dependencies import MissingExtraError, require
 from aeromanip.viz.gl import make_context
 
 

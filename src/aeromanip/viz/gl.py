@@ -16,7 +16,7 @@ import os
 from types import ModuleType
 from typing import Any, Protocol
 
-from aeromanip.viz.errors import RenderBackendError
+from aeromanip.viz.dependencies import RenderBackendError
 
 BACKENDS = ("egl", "osmesa", "glfw")
 AUTO = (("egl", "EGL"), ("osmesa", "OSMesa"))  # (backend, library) tried without MUJOCO_GL

@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 from aeromanip.experiment.runlog import RunLog
-from aeromanip.viz.errors import require
+from aeromanip.viz.dependencies import require
 
 LAYOUT_FILE = "foxglove-layout.json"
 

@@ -6,7 +6,7 @@ stamped with simulation time (``t`` of its row, nanoseconds from 0). Topics:
 
 * ``/tf`` (``foxglove.FrameTransforms``, per row): ``world`` -> base link (the logged
   platform pose, roll and pitch included in physics runs) and every URDF joint's
-  ``parent`` -> ``child`` (``viz.frames``);
+  ``parent`` -> ``child`` (``viz.transforms``);
 * ``/joint_states`` (``foxglove.JointStates``, per row): the arm joints by URDF name;
 * ``/log`` (JSON, schema ``aeromanip.LogRow``, per row): every column of ``log.csv``
   (non-finite numbers as ``null``);
@@ -31,10 +31,10 @@ import numpy as np
 
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.runlog import META_FILE, RunLog
-from aeromanip.viz.errors import require
-from aeromanip.viz.frames import WORLD, FrameTree
+from aeromanip.viz.dependencies import require
 from aeromanip.viz.layout import LAYOUT_FILE, foxglove_layout
 from aeromanip.viz.runs import URDF_FILE, SavedRun, box_bounds, load_run, run_dirs
+from aeromanip.viz.transforms import WORLD, FrameTree
 
 MCAP_FILE = "run.mcap"
 ATTACHED = {

@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 
 from aeromanip.errors import AeromanipError, ConfigError
-from aeromanip.viz.errors import require
-from aeromanip.viz.frames import quat_from_rpy
+from aeromanip.viz.dependencies import require
 from aeromanip.viz.gl import import_mujoco, make_context
 from aeromanip.viz.runs import SavedRun
 from aeromanip.viz.scene import DISC_SHARE, LINE_PX, FollowCamera, Overlays
+from aeromanip.viz.transforms import quat_from_rpy
 
 mujoco = import_mujoco()
 

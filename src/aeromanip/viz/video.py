@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from aeromanip.errors import AeromanipError, ConfigError
-from aeromanip.viz.errors import require
+from aeromanip.viz.dependencies import require
 
 KINDS = {".mp4": "mp4", ".gif": "gif", ".png": "png"}
 MIN_SIDE, MAX_SIDE = 16, 4096  # [px] of a panel

@@ -19,10 +19,10 @@ from aeromanip.experiment.runlog import RunLog
 from aeromanip.robot.loader import load_robot
 from aeromanip.robot.urdf_export import robot_to_urdf
 from aeromanip.sim.mjcf import robot_to_mjcf
-from aeromanip.viz.frames import FrameTree
 from aeromanip.viz.gl import backend_name
 from aeromanip.viz.render import Panel
 from aeromanip.viz.runs import Trajectory, load_run
+from aeromanip.viz.transforms import FrameTree
 
 ROBOT = "x8-3dof"
 DURATION_S = 600.0  # [s] of the synthetic run
