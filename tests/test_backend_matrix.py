@@ -54,10 +54,10 @@ def same(a, b):
     return bool(np.all(np.abs(a - b) <= REL * np.maximum(np.abs(b), 1e-8)))
 
 
-KNOWN = {  # cases that fail today, each with its issue: they must start passing there
-    ("clearance", "", "fatrop"): "issue 14: fatrop fails from rest with the clearance binding",
+KNOWN = {  # cases that fail today, each with its reason: strict, so a fix is noticed
+    ("clearance", "", "fatrop"): "fatrop fails from rest with the clearance binding",
     **{
-        (name, variant, "fatrop"): "issue 12: with the tracking level's regulariser at 10 %, "
+        (name, variant, "fatrop"): "with the tracking level's regulariser at 10 %, "
         "fatrop from rest lands in another local optimum, 0.9 % above IPOPT's at level 0"
         for name, variant in [
             ("waypoints", "hierarchical"),

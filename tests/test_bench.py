@@ -98,7 +98,7 @@ def test_the_horizon_probe_flies_its_case_and_reports_its_costs():
 
 
 def test_stress_cases_reach_ipopts_closed_loop_without_partial_steps():
-    """Issue 14: with the clearance binding from rest, the seeded sqp loops end where
+    """With the clearance binding from rest, the seeded sqp loops end where
     IPOPT's do (they stopped at a local optimum 4x costlier before), RTI too; with the
     velocity bounds binding, the hierarchy's second level is solved at every step."""
     from aeromanip.bench.controller_speed import run_variant

@@ -450,7 +450,7 @@ def test_hierarchy_levels_start_from_documented_guesses(backend, mode):
 
 @pytest.mark.xfail(
     strict=True,
-    reason="issue 12: with the regulariser at 10 % in level 0 the arm is stretched to its "
+    reason="with the regulariser at 10 % in level 0 the arm is stretched to its "
     "bounds toward the unreachable target, and DAQP finds level 1's pinned rows infeasible",
 )
 def test_the_strict_sqp_solves_level_one_toward_an_unreachable_target():

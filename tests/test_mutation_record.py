@@ -1,4 +1,4 @@
-"""The mutation-testing record (docs/testing.md, issue 18) agrees with its data.
+"""The mutation-testing record (docs/testing.md) agrees with its data.
 
 ``docs/mutation/nmpc-verdicts.json.gz`` holds the verdict of every ``nmpc/`` mutant that
 docs/testing.md counts; ``tools/mutation_report.py --verdicts`` makes the table from it.

@@ -1,4 +1,4 @@
-"""The do-mpc peer states the flight problem's objective as aeromanip does (issue 14)."""
+"""The do-mpc peer states the flight problem's objective as aeromanip does."""
 
 import pytest
 

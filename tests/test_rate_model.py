@@ -1,5 +1,5 @@
 """The prediction model with rate responses, command-rate bounds, latency compensation and
-time-scaled weights (issue 13), each checked against a truth computed here: the ODE
+time-scaled weights, each checked against a truth computed here: the ODE
 integrated by RK4, IPOPT on the same NLP, the kinematic simulator, a Riemann sum.
 """
 

@@ -1,4 +1,4 @@
-"""The sqp backend's IPOPT seed (issue 14): its options, checked before anything is built,
+"""The sqp backend's IPOPT seed: its options, checked before anything is built,
 the answer it keeps, and when it is made."""
 
 from types import SimpleNamespace

@@ -12,7 +12,7 @@ flight's hierarchical ``sqp`` is flown too, to scale the hierarchy's step times.
 * ``clearance``: the ``clearance`` scenario's reference rises to the base: the
   self-collision constraint (eq. 17) binds.
 
-Targets (issue 14), per case: no partial step; the hierarchical median within
+Targets, per case: no partial step; the hierarchical median within
 ``HIER_RATIO`` times the nominal one, its p95 within ``P95_MS``; closed-loop costs
 within ``SQP_COST`` (``sqp``) and ``RTI_COST`` (``sqp-rti``) of IPOPT's closed loop.
 """
