@@ -5,8 +5,9 @@ Truths: ``base.casadi_message`` (one line, without suggestions or listings),
 says), ``codegen.limit_blas_threads`` (read back with OpenBLAS's own getter), the QP
 solvers themselves (a failed QP reports the status DAQP / qpOASES give for the same QP),
 and the controller's and transcription's docstrings (warm starts, budgets, refusals,
-path rows). The SQP's own contracts: test_sqp_contract.py; its sparse model:
-test_sparse_model.py; the ``nlpsol`` backends: test_nlpsol_contract.py.
+path rows). The SQP's own contracts: tests/nmpc/backends/sqp/test_solver_options.py;
+its sparse model: tests/nmpc/backends/sqp/test_sparse_qp.py; the ``nlpsol`` backends:
+tests/nmpc/backends/test_nlpsol.py.
 """
 
 from __future__ import annotations

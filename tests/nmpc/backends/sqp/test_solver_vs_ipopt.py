@@ -13,20 +13,10 @@ from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.strategies import Hierarchical, Weighted
 from aeromanip.references import Constant
 from aeromanip.robot.loader import load_robot
-from aeromanip.tasks import CogAlignment, ControlRate, EndEffectorTracking
+from aeromanip.tasks import ControlRate, EndEffectorTracking
+from nmpc_helpers import FAST, X0, make_problem
 
 X8 = load_robot("x8-3dof")
-X0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
-FAST = {"codegen": False}  # in-process Functions: no compile time in most tests
-
-
-def make_problem(levels=(0, 1), target=(0.5, 0.3, 0.6), box=None, horizon=10):
-    pb = Problem(X8, horizon, 0.5, Bounds.from_robot(X8, platform_box=box))
-    pb.add_task(EndEffectorTracking(Constant(list(target))), weight=10.0, level=levels[0])
-    pb.add_task(CogAlignment(), weight=1.0, level=levels[1])
-    pb.add_task(ControlRate(), weight=0.1, level=None)
-    pb.add_constraint(Clearance(0.1))
-    return pb
 
 
 def check_feasible(pb, cmd, tol=1e-6):

@@ -3,7 +3,7 @@ given (damping, Hessian, multipliers), the merit's penalty, the count of accepta
 iterations, a cost that is not a number. Each expectation follows from the rules in the
 module's docstrings (the damping schedule, ``_go_exact``, ``PENALTY_MARGIN`` /
 ``PENALTY_FLOOR``), worked out by hand here. (The IPOPT seed's decisions:
-``test_sqp_seed.py``.)"""
+``tests/nmpc/backends/sqp/test_ipopt_seed.py``.)"""
 
 from types import SimpleNamespace
 

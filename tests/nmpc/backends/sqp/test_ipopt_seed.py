@@ -15,7 +15,7 @@ from aeromanip.nmpc.strategies import Weighted
 from aeromanip.references import Constant
 from aeromanip.robot.loader import load_robot
 from aeromanip.tasks import ControlRate, EndEffectorTracking
-from test_sqp import make_problem
+from nmpc_helpers import make_problem
 
 
 @pytest.mark.parametrize(
