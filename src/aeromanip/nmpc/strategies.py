@@ -211,10 +211,11 @@ class Hierarchical:
             scale = 1.0 if i == len(self.levels) - 1 else regularizer_scale
             tr = Transcription(problem, own + reg, higher, mode, scale)
             self.solvers.append(LevelSolver(own, tr, make_backend(tr, backend, options)))
-        # an SQP needs no feasible start: a relaxed level starts from its own last
-        # solution; a strict one from the level above's, on its rows exactly (from its
-        # own, with velocity bounds binding, it crawls back onto the curved rows)
-        self.own_guess = backend.startswith("sqp") and mode != "strict"
+        # a backend that needs no feasible start (an SQP): a relaxed level starts from its
+        # own last solution; a strict one from the level above's, on its rows exactly (from
+        # its own, with velocity bounds binding, it crawls back onto the curved rows)
+        needs_feasible = type(self.solvers[0].backend).needs_feasible_start
+        self.own_guess = not needs_feasible and mode != "strict"
         idx = {e.name: i for i, e in enumerate(problem.entries)}
         self.rows = [[idx[e.name] for e in st.entries] for st in self.solvers]
         self.reg_rows = [idx[e.name] for e in reg]

@@ -18,7 +18,7 @@ import re
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -50,6 +50,9 @@ class Backend(ABC):
     """
 
     kind: str = "backend"
+    # what the backend needs, read by the strategies (never its name): an interior point
+    # wants a start inside the relaxed hierarchy's rows, an SQP starts anywhere
+    needs_feasible_start: ClassVar[bool] = True
 
     @abstractmethod
     def __init__(

@@ -177,6 +177,7 @@ class SqpBackend(Backend):
 
     name = "sqp"
     defaults: ClassVar[dict[str, Any]] = DEFAULTS
+    needs_feasible_start: ClassVar[bool] = False
 
     def __init__(
         self, transcription: Transcription, options: Mapping[str, Any] | None = None
