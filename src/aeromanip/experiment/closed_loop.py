@@ -30,8 +30,7 @@ Row = dict[str, Any]
 def make_simulator(sc: Scenario) -> Simulator:
     """The scenario's simulator (``sim``: a registered name or ``package.module:Class``)."""
     cls = SIMULATORS.get(sc.sim, "sim")
-    options = sc.physics if cls.options_table == "physics" else {}
-    return cls.from_options(sc.robot, options)
+    return cls.from_options(sc.robot, sc.sim_options)
 
 
 def make_controller(sc: Scenario) -> Controller:
