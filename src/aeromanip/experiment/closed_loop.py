@@ -20,7 +20,6 @@ from aeromanip.experiment.scenario import Scenario
 from aeromanip.interrupts import deferred, raise_if_interrupted
 from aeromanip.nmpc.constraints import Clearance
 from aeromanip.nmpc.controller import Command, Controller
-from aeromanip.references import Waypoints
 from aeromanip.robot.spec import PLATFORM_DOFS
 from aeromanip.sim.base import SIMULATORS, Simulator
 
@@ -75,8 +74,8 @@ def run_meta(sc: Scenario) -> dict[str, Any]:
         meta["clearance_planned"] = min(
             c.d_min for c in sc.problem.constraints if isinstance(c, Clearance)
         )
-    if isinstance(sc.reference, Waypoints):
-        meta["waypoints"] = np.asarray(sc.reference.points).tolist()
+    if (markers := sc.reference.markers()) is not None:
+        meta["waypoints"] = np.asarray(markers).tolist()
     return meta
 
 
