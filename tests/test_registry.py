@@ -66,9 +66,9 @@ USER_FILES = {
         class CountingIpopt(IpoptBackend):
             solves = 0
 
-            def solve(self, *args, **kwargs):
+            def solve(self, request):
                 type(self).solves += 1
-                return super().solve(*args, **kwargs)
+                return super().solve(request)
         ''',
     "record_sim.py": '''
         """A user simulator: the ideal loop, recording the commands it flies; its options

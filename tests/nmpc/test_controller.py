@@ -325,8 +325,9 @@ def test_out_of_iterations_retry_goes_on_from_the_last_iterate():
         def __init__(self, first_status):
             self.first_status = first_status
 
-        def solve(self, w0, p, lbg, ubg, lam_g0=None, lam_x0=None):
-            seen.append((w0.copy(), lam_g0 is not None))
+        def solve(self, r):
+            w0 = r.w0
+            seen.append((w0.copy(), not r.cold))
             ok = len(seen) % 2 == 0
             return NlpResult(
                 w0 + 1.0,

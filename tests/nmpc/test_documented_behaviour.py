@@ -382,8 +382,8 @@ class Scripted:
     def __init__(self, *answers):
         self.answers, self.calls = list(answers), []
 
-    def solve(self, w0, p, lbg, ubg, lam_g0=None, lam_x0=None, shift=True):
-        self.calls.append((np.array(w0), lam_g0, lam_x0, (p, lbg, ubg)))
+    def solve(self, r):
+        self.calls.append((np.array(r.w0), r.lam_g0, r.lam_x0, (r.p, r.lbg, r.ubg)))
         return self.answers.pop(0)
 
 

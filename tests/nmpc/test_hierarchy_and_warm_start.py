@@ -420,9 +420,9 @@ def test_hierarchy_levels_start_from_documented_guesses(backend, mode):
     starts = [[], []]
     for i, st in enumerate(ctrl.strategy.solvers):
 
-        def record(w0, *args, _solve=st.backend.solve, _i=i, **kw):
-            starts[_i].append(np.array(w0))
-            return _solve(w0, *args, **kw)
+        def record(request, _solve=st.backend.solve, _i=i):
+            starts[_i].append(np.array(request.w0))
+            return _solve(request)
 
         st.backend.solve = record
     first = ctrl.step(X0, 0.0)

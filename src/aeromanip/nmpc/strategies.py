@@ -42,7 +42,7 @@ import casadi as ca
 import numpy as np
 
 from aeromanip.errors import ConfigError
-from aeromanip.nmpc.backends import Backend, NlpResult, make_backend
+from aeromanip.nmpc.backends import Backend, NlpResult, SolveRequest, make_backend
 from aeromanip.nmpc.problem import Problem, TaskEntry
 from aeromanip.nmpc.transcription import Transcription
 
@@ -115,10 +115,11 @@ def _solve_level(
     lbg = st.tr.lbg if lbg is None else lbg
     if st.warm is not None and st.warm.success:
         lam_g, lam_x = st.warm.lam_g, st.warm.lam_x
-    res = st.backend.solve(w0, p, lbg, ubg, lam_g, lam_x)
+    request = SolveRequest(w0, p, lbg, ubg, lam_g, lam_x)
+    res = st.backend.solve(request)
     if not res.success and lam_g is not None:  # stale multipliers can mislead: retry cold
         go_on = res.status == "Maximum_Iterations_Exceeded" and bool(np.isfinite(res.w).all())
-        cold = st.backend.solve(res.w if go_on else w0, p, lbg, ubg)
+        cold = st.backend.solve(request.cold_from(res.w if go_on else w0))
         cold.solve_time_s += res.solve_time_s
         cold.iterations += res.iterations
         res = cold

@@ -17,7 +17,7 @@ from __future__ import annotations
 import re
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -25,6 +25,30 @@ import numpy as np
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.transcription import Transcription
 from aeromanip.registry import Registry
+
+
+@dataclass(frozen=True)
+class SolveRequest:
+    """One NLP solve's inputs: the primal guess ``w0``, the parameters ``p``, the row
+    bounds ``lbg <= g <= ubg`` and the last control step's multipliers (``None``: a cold
+    start), moved a stage on by the backend unless ``shift`` is False (this very step's)."""
+
+    w0: np.ndarray
+    p: np.ndarray
+    lbg: np.ndarray
+    ubg: np.ndarray
+    lam_g0: np.ndarray | None = None
+    lam_x0: np.ndarray | None = None
+    shift: bool = True
+
+    @property
+    def cold(self) -> bool:
+        """No multipliers given."""
+        return self.lam_g0 is None
+
+    def cold_from(self, w0: np.ndarray) -> SolveRequest:
+        """The same NLP from ``w0`` without multipliers."""
+        return replace(self, w0=w0, lam_g0=None, lam_x0=None, shift=True)
 
 
 @dataclass
@@ -68,18 +92,9 @@ class Backend(ABC):
             raise ConfigError(f"solver_options: must be a table, got {options!r}")
 
     @abstractmethod
-    def solve(
-        self,
-        w0: np.ndarray,
-        p: np.ndarray,
-        lbg: np.ndarray,
-        ubg: np.ndarray,
-        lam_g0: np.ndarray | None = None,
-        lam_x0: np.ndarray | None = None,
-        shift: bool = True,
-    ) -> NlpResult:
-        """Solve from a primal guess and the last control step's multipliers (moved a
-        stage on unless ``shift`` is False)."""
+    def solve(self, request: SolveRequest) -> NlpResult:
+        """Solve ``request``: from its primal guess and the last control step's
+        multipliers (moved a stage on unless ``request.shift`` is False)."""
 
 
 BACKENDS: Registry[Backend] = Registry("backend", "aeromanip.nmpc.backends", Backend)
