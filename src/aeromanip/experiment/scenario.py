@@ -47,7 +47,14 @@ from aeromanip.nmpc.backends import BACKENDS
 from aeromanip.nmpc.constraints import D_MIN, Bounds, Clearance
 from aeromanip.nmpc.model import MAX_TAU
 from aeromanip.nmpc.problem import Problem
-from aeromanip.nmpc.strategies import ABS_TOL, MAX_ABS_TOL, MAX_REL_TOL, MODE, REL_TOL
+from aeromanip.nmpc.strategies import (
+    ABS_TOL,
+    MAX_ABS_TOL,
+    MAX_REL_TOL,
+    MODE,
+    REL_TOL,
+    STRATEGIES,
+)
 from aeromanip.nmpc.transcription import MODES
 from aeromanip.references import Reference, reference_from_table
 from aeromanip.robot.loader import robot_from_table
@@ -57,7 +64,6 @@ from aeromanip.tasks import TASKS, EndEffectorTracking
 
 __all__ = ["Scenario", "build_scenario", "builtin_scenarios", "load_scenarios"]
 
-STRATEGIES = ("weighted", "hierarchical")
 MIN_DT = 1e-3  # [s] the fastest control period (1 kHz)
 MAX_DT = 60.0  # [s]
 MAX_HORIZON = 500  # steps (the NLP grows with it: N = 100 covers 5 s at 20 Hz)
@@ -153,7 +159,8 @@ def _controller(t: Table, robot: RobotSpec) -> ControllerSettings:
     ct = t.table("controller")
     horizon = ct.int("horizon", minimum=1, maximum=MAX_HORIZON)
     dt = ct.float("dt", minimum=MIN_DT, maximum=MAX_DT)
-    strategy = ct.str("strategy", "weighted", choices=STRATEGIES)
+    strategy = ct.str("strategy", "weighted")
+    by_level = STRATEGIES.get(strategy, ct.key("strategy")).by_level  # known, or loads
     backend = ct.str("backend", "ipopt")
     backend_cls = BACKENDS.get(backend, ct.key("backend"))  # known, or a class that loads
     budget = ct.raw("time_budget", None)
@@ -168,7 +175,7 @@ def _controller(t: Table, robot: RobotSpec) -> ControllerSettings:
     if ct.has("response"):
         tau = per_dof(ct.table("response"), robot.state_names, 0.0, 0.0, MAX_TAU)
     hierarchy = {}
-    if strategy == "hierarchical" or ct.has("hierarchy"):
+    if by_level or ct.has("hierarchy"):
         ht = ct.table("hierarchy", {})
         hierarchy = {
             "mode": ht.str("mode", MODE, choices=MODES),
@@ -179,7 +186,7 @@ def _controller(t: Table, robot: RobotSpec) -> ControllerSettings:
             scale = ht.float("regularizer_scale", positive=True, maximum=1.0)
             hierarchy["regularizer_scale"] = scale
         ht.done()
-        if strategy != "hierarchical":
+        if not by_level:
             hierarchy = {}  # a weighted variant of a hierarchical scenario: not used
     solver_options = dict(ct.table("solver_options", {}).data)
     backend_cls.check_options(solver_options, horizon)  # before anything is built
