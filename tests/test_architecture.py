@@ -7,11 +7,14 @@ is found too.
 
 import ast
 import functools
+import re
 from pathlib import Path
 
 import pytest
 
-SRC = Path(__file__).resolve().parents[1] / "src" / "aeromanip"
+ROOT = Path(__file__).resolve().parents[1]
+SRC = ROOT / "src" / "aeromanip"
+DOC = ROOT / "docs" / "architecture.md"
 BASE = {"errors", "config", "registry", "interrupts"}
 # each top-level part of the package and the parts it may import (besides itself)
 ALLOWED: dict[str, set[str]] = {
@@ -100,6 +103,32 @@ def test_no_import_cycle():
     for m in sorted(g):
         if m not in state:
             visit(m, [])
+
+
+def documented_layers(table: str) -> dict[str, set[str] | None]:
+    """The "part | may import" table of docs/architecture.md: part -> the parts it may
+    import (``None``: anything). A part's own description, in parentheses, is skipped;
+    "the base" stands for ``BASE``."""
+    rows = re.findall(r"^\| (.+?) \| (.+?) \|$", table, flags=re.M)
+    out: dict[str, set[str] | None] = {}
+    for parts, allowed in rows[1:]:  # the first row is the header
+        names = re.findall(r"`([\w_]+)`", re.sub(r"\(.*\)", "", parts))
+        if allowed == "anything":
+            may = None
+        elif allowed == "nothing":
+            may = set()
+        else:
+            may = set(re.findall(r"`(\w+)`", allowed)) | (BASE if "the base" in allowed else set())
+        out |= dict.fromkeys(names, may)
+    return out
+
+
+def test_the_documented_layers_are_the_checked_ones():
+    text = DOC.read_text()
+    table = text[text.index("| part | may import |") :].split("\n\n", 1)[0]
+    doc = documented_layers(table)
+    assert {p for p, may in doc.items() if may is None} == TOP
+    assert {p: may for p, may in doc.items() if may is not None} == ALLOWED
 
 
 def test_the_checker_sees_function_level_imports(tmp_path):

@@ -66,16 +66,31 @@ USER_FILES = {
         class CountingIpopt(IpoptBackend):
             solves = 0
 
-            def solve(self, *args, **kwargs):
+            def solve(self, request):
                 type(self).solves += 1
-                return super().solve(*args, **kwargs)
+                return super().solve(request)
         ''',
     "record_sim.py": '''
-        """A user simulator: the ideal loop, recording the commands it flies."""
+        """A user simulator: the ideal loop, recording the commands it flies; its options
+        (a label) in a table of its own."""
+        from aeromanip.errors import ConfigError
         from aeromanip.sim.kinematic import KinematicSimulator
 
         class RecordingSim(KinematicSimulator):
             commands = []
+            options_table = "recorder"
+            built_with = None
+
+            @classmethod
+            def check_options(cls, options):
+                if set(options) - {"label"}:
+                    raise ConfigError(f"recorder: only 'label', got {sorted(options)}")
+                return dict(options)
+
+            @classmethod
+            def from_options(cls, spec, options):
+                cls.built_with = dict(cls.check_options(options))
+                return cls(spec)
 
             def advance(self, u, plan_x, dt):
                 type(self).commands.append(u.copy())
@@ -108,6 +123,9 @@ period = 10.0
 kind = "lift_task:HoldHeight"
 height = 1.05
 weight = 0.5
+
+[recorder]
+label = "mine"
 
 [variants.only]
 """
@@ -169,6 +187,8 @@ def test_user_classes_from_a_scenario_toml_fly_a_run(user_package):
 
     assert CountingIpopt.solves >= steps
     assert len(RecordingSim.commands) == steps
+    assert RecordingSim.built_with == {"label": "mine"}  # its own table, not [physics]
+    assert sc.resolved["recorder"] == {"label": "mine"}
     np.testing.assert_allclose(
         RecordingSim.commands[0],
         [log.column(f"u_{n}")[0] for n in ("x", "y", "z", "yaw", "q1", "q2", "q3")],

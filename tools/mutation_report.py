@@ -32,7 +32,7 @@ counts as "killed by a subset run". ``--survivors`` then lists what is left.
 ``--save FILE.json.gz`` writes the verdicts the table counts (mutant name -> status);
 ``--verdicts FILE.json.gz`` makes the table (or ``--survivors``) from such a file alone,
 without mutmut's directories: ``docs/mutation/nmpc-verdicts.json.gz`` holds the
-``nmpc/`` verdicts of docs/testing.md (measured 2026-11-30)::
+``nmpc/`` verdicts of docs/testing.md::
 
     python tools/mutation_report.py --verdicts docs/mutation/nmpc-verdicts.json.gz
 """

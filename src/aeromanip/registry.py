@@ -56,7 +56,8 @@ class Registry(Generic[T]):
             return
         self._discovered = True
         pkg = importlib.import_module(self.package)
-        for info in pkgutil.walk_packages(pkg.__path__, f"{self.package}."):
+        # a package's modules (sub-packages included); a module holds its own built-ins
+        for info in pkgutil.walk_packages(getattr(pkg, "__path__", []), f"{self.package}."):
             importlib.import_module(info.name)
 
     def names(self) -> tuple[str, ...]:

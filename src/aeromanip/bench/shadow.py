@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from aeromanip.nmpc.backends.base import make_backend
+from aeromanip.nmpc.backends.base import SolveRequest, make_backend
 from aeromanip.nmpc.controller import Command, Controller
 from aeromanip.nmpc.strategies import Hierarchical
 
@@ -53,8 +53,10 @@ class IpoptShadow:
         tr, ans = self.stage.tr, self.stage.warm
         if ans is None or not ans.success:
             return
-        same = self.ipopt.solve(guesses[0], p, tr.lbg, tr.ubg)
-        cert = self.restart.solve(ans.w, p, tr.lbg, tr.ubg, ans.lam_g, ans.lam_x, shift=False)
+        same = self.ipopt.solve(SolveRequest(guesses[0], p, tr.lbg, tr.ubg))
+        cert = self.restart.solve(
+            SolveRequest(ans.w, p, tr.lbg, tr.ubg, ans.lam_g, ans.lam_x, shift=False)
+        )
         if not (same.success and cert.success):
             self.ipopt_failures += 1
             return

@@ -20,7 +20,7 @@ from aeromanip.experiment.scenario import Scenario
 from aeromanip.interrupts import deferred, raise_if_interrupted
 from aeromanip.nmpc.constraints import Clearance
 from aeromanip.nmpc.controller import Command, Controller
-from aeromanip.references import Waypoints
+from aeromanip.nmpc.strategies import STRATEGIES
 from aeromanip.robot.spec import PLATFORM_DOFS
 from aeromanip.sim.base import SIMULATORS, Simulator
 
@@ -30,8 +30,7 @@ Row = dict[str, Any]
 def make_simulator(sc: Scenario) -> Simulator:
     """The scenario's simulator (``sim``: a registered name or ``package.module:Class``)."""
     cls = SIMULATORS.get(sc.sim, "sim")
-    options = sc.physics if cls.options_table == "physics" else {}
-    return cls.from_options(sc.robot, options)
+    return cls.from_options(sc.robot, sc.sim_options)
 
 
 def make_controller(sc: Scenario) -> Controller:
@@ -52,7 +51,7 @@ def log_columns(sc: Scenario, sim: Simulator) -> list[str]:
     cols = [*contract_columns(sc.robot.n_joints), "iterations", "message"]
     cols += [f"clear_{p}" for p in clearance_points(sc)]
     cols += [f"cost_{e.name}" for e in sc.problem.entries]
-    if sc.strategy == "hierarchical":  # per level: optimum, what it gained, what it lost
+    if STRATEGIES.get(sc.strategy).by_level:  # per level: optimum, gain, loss
         for lvl in sc.problem.levels:
             cols += [f"level{lvl}_{k}" for k in ("cost", "objective", "gain", "loss")]
     return cols + [k for k in sim.extras() if k not in cols]
@@ -76,8 +75,8 @@ def run_meta(sc: Scenario) -> dict[str, Any]:
         meta["clearance_planned"] = min(
             c.d_min for c in sc.problem.constraints if isinstance(c, Clearance)
         )
-    if isinstance(sc.reference, Waypoints):
-        meta["waypoints"] = np.asarray(sc.reference.points).tolist()
+    if (markers := sc.reference.markers()) is not None:
+        meta["waypoints"] = np.asarray(markers).tolist()
     return meta
 
 
@@ -110,6 +109,7 @@ class RowMaker:
 
     def __init__(self, sc: Scenario) -> None:
         self.sc = sc
+        self.by_level = STRATEGIES.get(sc.strategy).by_level  # per-level columns
         self.log_f = _log_function(sc)
         spec = sc.robot
         names = spec.state_names
@@ -142,7 +142,7 @@ class RowMaker:
             message=cmd.message,
         )
         row.update({f"cost_{n}": c for n, c in cmd.task_costs.items()})
-        if self.sc.strategy == "hierarchical":
+        if self.by_level:
             for lv in cmd.levels:
                 for key in ("cost", "objective", "gain", "loss"):
                     row[f"level{lv.level}_{key}"] = getattr(lv, key)

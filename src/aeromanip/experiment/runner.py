@@ -32,7 +32,6 @@ from aeromanip.experiment.runlog import (
 from aeromanip.experiment.scenario import MAX_BOUND_VIOLATION, Scenario
 from aeromanip.interrupts import RunInterrupted, deferred
 from aeromanip.interrupts import clear as clear_interrupts
-from aeromanip.references import SinusoidPhases
 from aeromanip.robot.urdf_export import robot_to_urdf
 from aeromanip.sim.mjcf import robot_to_mjcf
 
@@ -59,17 +58,15 @@ def write_static_files(sc: Scenario, out_dir: Path) -> None:
 def summarize(sc: Scenario, log: RunLog, interrupted: bool = False) -> dict[str, Any]:
     """The run's metrics (``RunLog.summary``) plus what identifies it."""
     summary = log.summary()
-    if isinstance(sc.reference, SinusoidPhases):  # who carries each phase (Fig. 3's claim)
-        ref = sc.reference
-        ends = [*ref.phase_starts[1:], ref.duration]
+    if (phases := sc.reference.motion_phases()) is not None:  # who carries each phase (Fig. 3)
         summary["phases"] = [
-            {"t0_s": float(t0), "t1_s": float(t1)}
+            {"t0_s": t0, "t1_s": t1}
             | {
                 f"{k}_share": v
-                for k, v in motion_share(log, t0, t1, ref.direction).items()
+                for k, v in motion_share(log, t0, t1, direction).items()
                 if k in ("arm", "platform")
             }
-            for t0, t1 in zip(ref.phase_starts, ends, strict=True)
+            for t0, t1, direction in phases
         ]
     summary.update(
         scenario=sc.name,

@@ -24,7 +24,8 @@ Layout (see the built-in files in ``aeromanip/scenarios/`` for documented exampl
     [tasks.NAME]  kind (default NAME; or "package.module:Class"), weight, terminal_weight,
                   level | regularizer = true, and the task's own options (tracked,
                   target_xy, eps, delta, kink: see each task's ``from_table``)
-    [physics]     options of the physics simulator
+    [physics]     options of the physics simulator (any simulator names its own
+                  table: ``Simulator.options_table``)
     [variants.NAME]  overrides merged into the scenario, e.g. ``tasks.cond.weight = 0.0``
 
 Every value read is recorded (defaults included) so that ``resolved`` written as TOML
@@ -46,7 +47,14 @@ from aeromanip.nmpc.backends import BACKENDS
 from aeromanip.nmpc.constraints import D_MIN, Bounds, Clearance
 from aeromanip.nmpc.model import MAX_TAU
 from aeromanip.nmpc.problem import Problem
-from aeromanip.nmpc.strategies import ABS_TOL, MAX_ABS_TOL, MAX_REL_TOL, MODE, REL_TOL
+from aeromanip.nmpc.strategies import (
+    ABS_TOL,
+    MAX_ABS_TOL,
+    MAX_REL_TOL,
+    MODE,
+    REL_TOL,
+    STRATEGIES,
+)
 from aeromanip.nmpc.transcription import MODES
 from aeromanip.references import Reference, reference_from_table
 from aeromanip.robot.loader import robot_from_table
@@ -56,7 +64,6 @@ from aeromanip.tasks import TASKS, EndEffectorTracking
 
 __all__ = ["Scenario", "build_scenario", "builtin_scenarios", "load_scenarios"]
 
-STRATEGIES = ("weighted", "hierarchical")
 MIN_DT = 1e-3  # [s] the fastest control period (1 kHz)
 MAX_DT = 60.0  # [s]
 MAX_HORIZON = 500  # steps (the NLP grows with it: N = 100 covers 5 s at 20 Hz)
@@ -92,6 +99,8 @@ class Scenario:
     max_failure_ratio: float = MAX_FAILURE_RATIO
     max_bound_violation: float = MAX_BOUND_VIOLATION
     resolved: dict[str, Any] = field(default_factory=dict)
+    #: the simulator's options: the table its ``options_table`` names (``[physics]``...)
+    sim_options: dict[str, Any] = field(default_factory=dict)
 
     @property
     def steps(self) -> int:
@@ -150,7 +159,8 @@ def _controller(t: Table, robot: RobotSpec) -> ControllerSettings:
     ct = t.table("controller")
     horizon = ct.int("horizon", minimum=1, maximum=MAX_HORIZON)
     dt = ct.float("dt", minimum=MIN_DT, maximum=MAX_DT)
-    strategy = ct.str("strategy", "weighted", choices=STRATEGIES)
+    strategy = ct.str("strategy", "weighted")
+    by_level = STRATEGIES.get(strategy, ct.key("strategy")).by_level  # known, or loads
     backend = ct.str("backend", "ipopt")
     backend_cls = BACKENDS.get(backend, ct.key("backend"))  # known, or a class that loads
     budget = ct.raw("time_budget", None)
@@ -165,7 +175,7 @@ def _controller(t: Table, robot: RobotSpec) -> ControllerSettings:
     if ct.has("response"):
         tau = per_dof(ct.table("response"), robot.state_names, 0.0, 0.0, MAX_TAU)
     hierarchy = {}
-    if strategy == "hierarchical" or ct.has("hierarchy"):
+    if by_level or ct.has("hierarchy"):
         ht = ct.table("hierarchy", {})
         hierarchy = {
             "mode": ht.str("mode", MODE, choices=MODES),
@@ -176,7 +186,7 @@ def _controller(t: Table, robot: RobotSpec) -> ControllerSettings:
             scale = ht.float("regularizer_scale", positive=True, maximum=1.0)
             hierarchy["regularizer_scale"] = scale
         ht.done()
-        if strategy != "hierarchical":
+        if not by_level:
             hierarchy = {}  # a weighted variant of a hierarchical scenario: not used
     solver_options = dict(ct.table("solver_options", {}).data)
     backend_cls.check_options(solver_options, horizon)  # before anything is built
@@ -295,16 +305,27 @@ def _initial_state(
     return x0
 
 
-def _simulation(t: Table, robot: RobotSpec, cs: ControllerSettings) -> tuple[str, dict[str, Any]]:
-    """The simulator's name and the ``[physics]`` options (read even when not used);
-    the control period and the latency are whole numbers of the simulator's steps."""
+def _simulation(
+    t: Table, robot: RobotSpec, cs: ControllerSettings
+) -> tuple[str, dict[str, Any], dict[str, Any]]:
+    """The simulator's name, the ``[physics]`` options (read even when not used: the
+    SITL autopilot flies the physics simulator) and the simulator's own options (the
+    table its ``options_table`` names; none if it names none); the control period and
+    the latency are whole numbers of the simulator's steps."""
     sim = t.str("sim", "kinematic")
     cls = SIMULATORS.get(sim, t.key("sim"))
     physics = dict(t.table("physics", {}).data)
     t.resolved["physics"] = physics
-    options = physics if cls.options_table == "physics" else {}
-    if cls.options_table == "physics":  # checked now, built when the run starts
-        cls.check_options(physics)
+    table = cls.options_table
+    if table is None:
+        options: dict[str, Any] = {}
+    elif table == "physics":
+        options = physics
+    else:
+        options = dict(t.table(table, {}).data)
+        t.resolved[table] = options
+    if table is not None:  # checked now, built when the run starts
+        cls.check_options(options)
     h = cls.time_step(options)
     for key, value in (("dt", cs.dt), ("latency", cs.latency_s)):
         if h is not None and abs(value / h - round(value / h)) > 1e-6:
@@ -312,7 +333,7 @@ def _simulation(t: Table, robot: RobotSpec, cs: ControllerSettings) -> tuple[str
                 f"controller.{key}: {value:g} s is not a whole number of the {sim} "
                 f"simulator's steps ({h:g} s)"
             )
-    return sim, physics
+    return sim, physics, options
 
 
 def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> Scenario:
@@ -329,7 +350,7 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
     tracked = _tasks(t, problem, reference)
     clearance = _clearance(t, problem)
     x0 = _initial_state(t, problem, bounds, clearance)
-    sim, physics = _simulation(t, robot, cs)
+    sim, physics, sim_options = _simulation(t, robot, cs)
     duration = t.float("duration", minimum=cs.dt, maximum=MAX_DURATION)
     if duration / cs.dt > MAX_STEPS:
         raise ConfigError(
@@ -358,6 +379,7 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
         x0=x0,
         sim=sim,
         physics=physics,
+        sim_options=sim_options,
         tracked=tracked,
         clearance=clearance,
         limits=limits,

@@ -21,7 +21,7 @@ import numpy as np
 
 from aeromanip.errors import ConfigError, StateError
 from aeromanip.nmpc.problem import Problem
-from aeromanip.nmpc.strategies import Hierarchical, LevelReport, StrategyResult, Weighted
+from aeromanip.nmpc.strategies import STRATEGIES, LevelReport, Strategy, StrategyResult
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,8 @@ class Controller:
 
     Args:
         problem: tasks, constraints, horizon.
-        strategy: ``"weighted"`` or ``"hierarchical"``.
+        strategy: ``"weighted"`` or ``"hierarchical"`` (``STRATEGIES``), or a ``Strategy``
+            subclass as ``"package.module:Class"``.
         backend: NLP solver: ``"ipopt"``, ``"fatrop"``, ``"sqp"`` (Gauss-Newton SQP, fast) or
             ``"sqp-rti"`` (one SQP iteration per step), or a ``Backend`` subclass as
             ``"package.module:Class"``; see ``aeromanip.nmpc.backends``.
@@ -85,16 +86,8 @@ class Controller:
         if not (0.0 <= latency_s < problem.dt):
             raise ConfigError(f"latency: must be in [0, dt = {problem.dt:g}) s, got {latency_s!r}")
         self.latency_s = float(latency_s)
-        if strategy == "weighted":
-            if hierarchy:
-                raise ConfigError("hierarchy: options given but strategy is 'weighted'")
-            self.strategy: Weighted | Hierarchical = Weighted(problem, backend, solver_options)
-        elif strategy == "hierarchical":
-            self.strategy = Hierarchical(
-                problem, backend=backend, options=solver_options, **dict(hierarchy or {})
-            )
-        else:
-            raise ConfigError(f"strategy: {strategy!r} is not 'weighted' or 'hierarchical'")
+        cls = STRATEGIES.get(strategy, "strategy")
+        self.strategy: Strategy = cls.build(problem, backend, solver_options, hierarchy or {})
         self.time_budget_s = time_budget_s
         self.nx = problem.kin.nx
         self.reset()

@@ -34,17 +34,19 @@ became infeasible for IPOPT three levels down.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
 
 from aeromanip.errors import ConfigError
-from aeromanip.nmpc.backends import Backend, NlpResult, make_backend
+from aeromanip.nmpc.backends import Backend, NlpResult, SolveRequest, make_backend
 from aeromanip.nmpc.problem import Problem, TaskEntry
 from aeromanip.nmpc.transcription import Transcription
+from aeromanip.registry import Registry
 
 MODE = "strict"  # higher levels' residuals pinned at their optimum (module docstring)
 REL_TOL = 1e-3  # relaxed modes: relative relaxation of a higher level's optimal cost
@@ -115,10 +117,11 @@ def _solve_level(
     lbg = st.tr.lbg if lbg is None else lbg
     if st.warm is not None and st.warm.success:
         lam_g, lam_x = st.warm.lam_g, st.warm.lam_x
-    res = st.backend.solve(w0, p, lbg, ubg, lam_g, lam_x)
+    request = SolveRequest(w0, p, lbg, ubg, lam_g, lam_x)
+    res = st.backend.solve(request)
     if not res.success and lam_g is not None:  # stale multipliers can mislead: retry cold
         go_on = res.status == "Maximum_Iterations_Exceeded" and bool(np.isfinite(res.w).all())
-        cold = st.backend.solve(res.w if go_on else w0, p, lbg, ubg)
+        cold = st.backend.solve(request.cold_from(res.w if go_on else w0))
         cold.solve_time_s += res.solve_time_s
         cold.iterations += res.iterations
         res = cold
@@ -126,7 +129,51 @@ def _solve_level(
     return res
 
 
-class Weighted:
+class Strategy(ABC):
+    """How the tasks' costs become NLPs (one per level, ``solvers``) and how their
+    solutions make one answer. Registered by name in ``STRATEGIES``; a strategy of your
+    own is a subclass named ``"package.module:Class"``.
+    """
+
+    kind: str = "strategy"
+    #: solved level by level: takes the ``hierarchy`` options and reports every level
+    by_level: ClassVar[bool] = False
+    solvers: list[LevelSolver]
+
+    @classmethod
+    def build(
+        cls,
+        problem: Problem,
+        backend: str,
+        options: Mapping[str, Any] | None,
+        hierarchy: Mapping[str, Any],
+    ) -> Strategy:
+        """The strategy for ``problem`` with the ``backend`` (and its ``options``) at every
+        level; ``hierarchy``: the options of a strategy ``by_level`` (else empty)."""
+        if hierarchy and not cls.by_level:
+            raise ConfigError(f"hierarchy: options given but strategy is {cls.kind!r}")
+        return cls(problem, backend=backend, options=options, **dict(hierarchy))  # type: ignore[call-arg]
+
+    @property
+    def transcription(self) -> Transcription:
+        """The transcription whose variable layout results use (the last level's)."""
+        return self.solvers[-1].tr
+
+    def reset(self) -> None:
+        """Forget the warm starts."""
+        for solver in self.solvers:
+            solver.warm = None
+
+    @abstractmethod
+    def solve(self, p: np.ndarray, guesses: list[np.ndarray | None]) -> StrategyResult:
+        """Solve from ``guesses`` (each level's primal guess; ``guesses[0]`` given)."""
+
+
+STRATEGIES: Registry[Strategy] = Registry("strategy", "aeromanip.nmpc.strategies", Strategy)
+
+
+@STRATEGIES.register("weighted")
+class Weighted(Strategy):
     """One optimisation of the weighted sum of every task (levels ignored)."""
 
     def __init__(
@@ -137,16 +184,6 @@ class Weighted:
         tr = Transcription(problem, problem.entries)
         self.solvers = [LevelSolver(problem.entries, tr, make_backend(tr, backend, options))]
         self.problem = problem
-
-    @property
-    def transcription(self) -> Transcription:
-        """The transcription whose variable layout results use."""
-        return self.solvers[-1].tr
-
-    def reset(self) -> None:
-        """Forget the warm starts."""
-        for solver in self.solvers:
-            solver.warm = None
 
     def solve(self, p: np.ndarray, guesses: list[np.ndarray | None]) -> StrategyResult:
         """Solve from the primal guess ``guesses[0]`` (duals are reused from the last solve)."""
@@ -163,7 +200,8 @@ class Weighted:
         )
 
 
-class Hierarchical:
+@STRATEGIES.register("hierarchical")
+class Hierarchical(Strategy):
     """Nested optimisations over ``problem.levels`` (see module docstring).
 
     Args:
@@ -177,6 +215,8 @@ class Hierarchical:
             level but the last, in (0, 1] (module docstring; 1: full weight everywhere;
             default: ``REGULARIZER_SCALE`` in ``strict`` mode, else 1).
     """
+
+    by_level: ClassVar[bool] = True
 
     def __init__(
         self,
@@ -211,23 +251,14 @@ class Hierarchical:
             scale = 1.0 if i == len(self.levels) - 1 else regularizer_scale
             tr = Transcription(problem, own + reg, higher, mode, scale)
             self.solvers.append(LevelSolver(own, tr, make_backend(tr, backend, options)))
-        # an SQP needs no feasible start: a relaxed level starts from its own last
-        # solution; a strict one from the level above's, on its rows exactly (from its
-        # own, with velocity bounds binding, it crawls back onto the curved rows)
-        self.own_guess = backend.startswith("sqp") and mode != "strict"
+        # a backend that needs no feasible start (an SQP): a relaxed level starts from its
+        # own last solution; a strict one from the level above's, on its rows exactly (from
+        # its own, with velocity bounds binding, it crawls back onto the curved rows)
+        needs_feasible = type(self.solvers[0].backend).needs_feasible_start
+        self.own_guess = not needs_feasible and mode != "strict"
         idx = {e.name: i for i, e in enumerate(problem.entries)}
         self.rows = [[idx[e.name] for e in st.entries] for st in self.solvers]
         self.reg_rows = [idx[e.name] for e in reg]
-
-    @property
-    def transcription(self) -> Transcription:
-        """The transcription whose variable layout results use (all levels share it)."""
-        return self.solvers[-1].tr
-
-    def reset(self) -> None:
-        """Forget the warm starts."""
-        for solver in self.solvers:
-            solver.warm = None
 
     def _bounds(
         self, i: int, p: np.ndarray, optima: list[np.ndarray], level_w: list[np.ndarray]

@@ -44,6 +44,17 @@ class Reference(ABC):
     def sample(self, times: np.ndarray | Sequence[float]) -> np.ndarray:
         """Reference positions [m] at ``times`` [s], shape (len(times), 3)."""
 
+    def markers(self) -> np.ndarray | None:
+        """Points [m] to mark in run metadata, plots and replays (e.g. waypoints), shape
+        (n, 3); ``None`` (the default) for none."""
+        return None
+
+    def motion_phases(self) -> list[tuple[float, float, np.ndarray]] | None:
+        """``(t0, t1, direction)`` of each phase of motion along one unit direction, for
+        the run summary's share of that motion carried by the arm and by the platform;
+        ``None`` (the default) for none."""
+        return None
+
     @classmethod
     def from_table(cls, table: Table, base_dir: Path | None = None) -> Reference:
         """Build from the keys of a TOML table (``kind`` excluded); ``base_dir`` anchors

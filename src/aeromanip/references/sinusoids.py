@@ -70,6 +70,14 @@ class SinusoidPhases(Reference):
         self._offsets = np.concatenate([[0.0], np.cumsum(end_offsets)])  # along d [m]
         self.duration = float(ph_arr[:, 0].sum())
 
+    def motion_phases(self) -> list[tuple[float, float, np.ndarray]]:
+        """Each phase's start and end [s], along the reference's direction."""
+        ends = [*self.phase_starts[1:], self.duration]
+        return [
+            (float(t0), float(t1), self.direction)
+            for t0, t1 in zip(self.phase_starts, ends, strict=True)
+        ]
+
     @property
     def phase_starts(self) -> np.ndarray:
         """Start time [s] of each phase."""

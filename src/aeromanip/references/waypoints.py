@@ -63,6 +63,10 @@ class Waypoints(Reference):
         self._knot_p = knot_p
         self.duration = float(self.times[-1] + self.hold_s)
 
+    def markers(self) -> np.ndarray:
+        """The waypoints [m], shape (n, 3)."""
+        return self.points
+
     def sample(self, times: np.ndarray | Sequence[float]) -> np.ndarray:
         """Reference positions [m] at ``times`` [s], shape (len(times), 3)."""
         t = as_times(times)

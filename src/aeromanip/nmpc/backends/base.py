@@ -17,14 +17,38 @@ from __future__ import annotations
 import re
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, replace
+from typing import Any, ClassVar
 
 import numpy as np
 
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.transcription import Transcription
 from aeromanip.registry import Registry
+
+
+@dataclass(frozen=True)
+class SolveRequest:
+    """One NLP solve's inputs: the primal guess ``w0``, the parameters ``p``, the row
+    bounds ``lbg <= g <= ubg`` and the last control step's multipliers (``None``: a cold
+    start), moved a stage on by the backend unless ``shift`` is False (this very step's)."""
+
+    w0: np.ndarray
+    p: np.ndarray
+    lbg: np.ndarray
+    ubg: np.ndarray
+    lam_g0: np.ndarray | None = None
+    lam_x0: np.ndarray | None = None
+    shift: bool = True
+
+    @property
+    def cold(self) -> bool:
+        """No multipliers given."""
+        return self.lam_g0 is None
+
+    def cold_from(self, w0: np.ndarray) -> SolveRequest:
+        """The same NLP from ``w0`` without multipliers."""
+        return replace(self, w0=w0, lam_g0=None, lam_x0=None, shift=True)
 
 
 @dataclass
@@ -50,6 +74,9 @@ class Backend(ABC):
     """
 
     kind: str = "backend"
+    # what the backend needs, read by the strategies (never its name): an interior point
+    # wants a start inside the relaxed hierarchy's rows, an SQP starts anywhere
+    needs_feasible_start: ClassVar[bool] = True
 
     @abstractmethod
     def __init__(
@@ -65,18 +92,9 @@ class Backend(ABC):
             raise ConfigError(f"solver_options: must be a table, got {options!r}")
 
     @abstractmethod
-    def solve(
-        self,
-        w0: np.ndarray,
-        p: np.ndarray,
-        lbg: np.ndarray,
-        ubg: np.ndarray,
-        lam_g0: np.ndarray | None = None,
-        lam_x0: np.ndarray | None = None,
-        shift: bool = True,
-    ) -> NlpResult:
-        """Solve from a primal guess and the last control step's multipliers (moved a
-        stage on unless ``shift`` is False)."""
+    def solve(self, request: SolveRequest) -> NlpResult:
+        """Solve ``request``: from its primal guess and the last control step's
+        multipliers (moved a stage on unless ``request.shift`` is False)."""
 
 
 BACKENDS: Registry[Backend] = Registry("backend", "aeromanip.nmpc.backends", Backend)

@@ -13,7 +13,13 @@ import numpy as np
 
 from aeromanip.errors import ConfigError
 from aeromanip.interrupts import deferred, raise_if_interrupted
-from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult, casadi_message
+from aeromanip.nmpc.backends.base import (
+    BACKENDS,
+    Backend,
+    NlpResult,
+    SolveRequest,
+    casadi_message,
+)
 from aeromanip.nmpc.transcription import Transcription
 
 IPOPT_OPTIONS: dict[str, Any] = {
@@ -89,19 +95,12 @@ class NlpBackend(Backend):
             else None
         )
 
-    def solve(
-        self,
-        w0: np.ndarray,
-        p: np.ndarray,
-        lbg: np.ndarray,
-        ubg: np.ndarray,
-        lam_g0: np.ndarray | None = None,
-        lam_x0: np.ndarray | None = None,
-        shift: bool = True,
-    ) -> NlpResult:
+    def solve(self, request: SolveRequest) -> NlpResult:
         """Solve from the initial guess ``w0`` and, if given, the multipliers of the last
         control step (moved a stage on here, as ``w0`` is by the caller; ``shift=False``:
         multipliers of this very step, used as they are)."""
+        w0, p, lbg, ubg = request.w0, request.p, request.lbg, request.ubg
+        lam_g0, lam_x0, shift = request.lam_g0, request.lam_x0, request.shift
         lbw, ubw = self.tr.variable_bounds(p)
         args: dict[str, Any] = {"x0": w0, "p": p, "lbx": lbw, "ubx": ubw, "lbg": lbg, "ubg": ubg}
         if lam_g0 is not None:

@@ -16,6 +16,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from aeromanip.nmpc.backends.base import SolveRequest
 from aeromanip.nmpc.backends.codegen import Buffered, compiled_all
 from aeromanip.nmpc.backends.sqp.convexify import convexified
 from aeromanip.nmpc.backends.sqp.dense_qp import DenseQp, QpResult
@@ -125,19 +126,12 @@ class CondensedQpModel:
         )
 
     # -- the QpModel interface -------------------------------------------------------------
-    def start(
-        self,
-        w0: np.ndarray,
-        p: np.ndarray,
-        lbg: np.ndarray,
-        ubg: np.ndarray,
-        lam_g0: np.ndarray | None,
-        lam_x0: np.ndarray | None,
-        shift: bool,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def start(self, request: SolveRequest) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The commands of ``w0`` (clipped to their bounds), the row bounds of this
         solve, and the starting multipliers with the QP's memory of active rows:
         forgotten on a cold start, moved a stage on with the last step's multipliers."""
+        w0, p, lbg, ubg = request.w0, request.p, request.lbg, request.ubg
+        lam_g0, lam_x0, shift = request.lam_g0, request.lam_x0, request.shift
         lbw, ubw = self.tr.variable_bounds(p)  # the state box, widened where it must be
         self.lbc = np.concatenate([lbg[self.keep], lbw[self.state_idx]])
         self.ubc = np.concatenate([ubg[self.keep], ubw[self.state_idx]])

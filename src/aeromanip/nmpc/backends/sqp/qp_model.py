@@ -14,6 +14,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from aeromanip.nmpc.backends.base import SolveRequest
 from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
 
 
@@ -33,16 +34,7 @@ class Linearization:
 class QpModel(Protocol):
     """A QP model of one transcription (see the module docstring)."""
 
-    def start(
-        self,
-        w0: np.ndarray,
-        p: np.ndarray,
-        lbg: np.ndarray,
-        ubg: np.ndarray,
-        lam_g0: np.ndarray | None,
-        lam_x0: np.ndarray | None,
-        shift: bool,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def start(self, request: SolveRequest) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The first iterate ``v`` (from the NLP guess ``w0``, inside the variable bounds)
         and multipliers ``lam_c``, ``lam_v`` (the last step's, moved a stage on with
         ``shift``); the row bounds ``lbg, ubg`` and the variable bounds for the

@@ -56,12 +56,19 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from typing import Any, ClassVar
 
 import numpy as np
 
 from aeromanip.errors import ConfigError
-from aeromanip.nmpc.backends.base import BACKENDS, Backend, NlpResult, make_backend
+from aeromanip.nmpc.backends.base import (
+    BACKENDS,
+    Backend,
+    NlpResult,
+    SolveRequest,
+    make_backend,
+)
 from aeromanip.nmpc.backends.codegen import limit_blas_threads
 from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
 from aeromanip.nmpc.backends.sqp.dense_qp import SOLVERS as QP_SOLVERS
@@ -177,6 +184,7 @@ class SqpBackend(Backend):
 
     name = "sqp"
     defaults: ClassVar[dict[str, Any]] = DEFAULTS
+    needs_feasible_start: ClassVar[bool] = False
 
     def __init__(
         self, transcription: Transcription, options: Mapping[str, Any] | None = None
@@ -235,24 +243,15 @@ class SqpBackend(Backend):
         """See ``checked_options``."""
         cls.checked_options(options, horizon)
 
-    def solve(
-        self,
-        w0: np.ndarray,
-        p: np.ndarray,
-        lbg: np.ndarray,
-        ubg: np.ndarray,
-        lam_g0: np.ndarray | None = None,
-        lam_x0: np.ndarray | None = None,
-        shift: bool = True,
-    ) -> NlpResult:
+    def solve(self, request: SolveRequest) -> NlpResult:
         """Solve from the primal guess ``w0`` and multipliers: the last control step's,
         moved a stage on here (``shift=False``: this step's); seeded by IPOPT on a cold
         start (no multipliers) or an answer far above the last one's cost (``seed``)."""
         seeded = self.opts["seed"] != "none"
-        if seeded and lam_g0 is None:
-            res = self._seeded(w0, p, lbg, ubg)
+        if seeded and request.cold:
+            res = self._seeded(request)
         else:
-            res = self._sqp(w0, p, lbg, ubg, lam_g0, lam_x0, shift)
+            res = self._sqp(request)
             promise = self._promise
             if (
                 seeded
@@ -260,11 +259,11 @@ class SqpBackend(Backend):
                 and promise is not None
                 and res.f > self.opts["seed_ratio"] * promise + SEED_FLOOR
             ):
-                res = _cheaper(res, self._seeded(w0, p, lbg, ubg))
+                res = _cheaper(res, self._seeded(request))
         self._promise = res.f if res.success else None
         return res
 
-    def _seeded(self, w0: np.ndarray, p: np.ndarray, lbg: np.ndarray, ubg: np.ndarray) -> NlpResult:
+    def _seeded(self, request: SolveRequest) -> NlpResult:
         """IPOPT from ``w0`` (at most ``seed_max_iter`` iterations), then the SQP from its
         answer and multipliers (the SQP alone from ``w0`` if IPOPT fails). The time of
         both is counted; ``iterations`` counts the QPs only."""
@@ -272,29 +271,24 @@ class SqpBackend(Backend):
         if self._ipopt is None:
             opts = {"ipopt.max_iter": int(self.opts["seed_max_iter"])}
             self._ipopt = make_backend(self.tr, "ipopt", opts)
-        first = self._ipopt.solve(w0, p, lbg, ubg)
+        cold = request.cold_from(request.w0)
+        first = self._ipopt.solve(cold)
         if not first.success:
-            res = self._sqp(w0, p, lbg, ubg, None, None, True)
+            res = self._sqp(cold)
         else:
-            res = self._sqp(first.w, p, lbg, ubg, first.lam_g, first.lam_x, False)
+            res = self._sqp(
+                replace(cold, w0=first.w, lam_g0=first.lam_g, lam_x0=first.lam_x, shift=False)
+            )
         res.solve_time_s += first.solve_time_s
         return res
 
-    def _sqp(
-        self,
-        w0: np.ndarray,
-        p: np.ndarray,
-        lbg: np.ndarray,
-        ubg: np.ndarray,
-        lam_g0: np.ndarray | None,
-        lam_x0: np.ndarray | None,
-        shift: bool,
-    ) -> NlpResult:
+    def _sqp(self, request: SolveRequest) -> NlpResult:
         """The SQP loop (module docstring)."""
         t0 = time.perf_counter()
         o, model = self.opts, self.model
-        p = np.asarray(p, dtype=float)
-        v, lam_c, lam_v = model.start(w0, p, lbg, ubg, lam_g0, lam_x0, shift)
+        request = replace(request, p=np.asarray(request.p, dtype=float))
+        p = request.p
+        v, lam_c, lam_v = model.start(request)
         mu, it, status, ok, f = 0.0, 0, "", False, np.nan
         exact = o["hessian"] == "exact"
         max_iter = 1 if o["rti"] else int(o["max_iter"])
@@ -307,7 +301,7 @@ class SqpBackend(Backend):
             if not np.isfinite(f):  # NaN in derivatives shows in the QP's solution
                 status = "Invalid_Number_Detected"
                 break
-            warm = lam_g0 is not None
+            warm = not request.cold
             status, acceptable = self._verdict(v, lin, lam_c, lam_v, it, warm, acceptable, max_iter)
             if status:
                 ok = status in SOLVED

@@ -21,6 +21,7 @@ import casadi as ca
 import numpy as np
 
 from aeromanip.errors import ConfigError
+from aeromanip.nmpc.backends.base import SolveRequest
 from aeromanip.nmpc.backends.codegen import Buffered, compiled_all
 from aeromanip.nmpc.backends.sqp.convexify import convexified_blocks
 from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
@@ -217,18 +218,11 @@ class SparseQpModel:
         return g
 
     # -- the QpModel interface -------------------------------------------------------------
-    def start(
-        self,
-        w0: np.ndarray,
-        p: np.ndarray,
-        lbg: np.ndarray,
-        ubg: np.ndarray,
-        lam_g0: np.ndarray | None,
-        lam_x0: np.ndarray | None,
-        shift: bool,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def start(self, request: SolveRequest) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The NLP guess (inside the variable bounds, stage 0 as pinned by the NLP's
         parameters at ``linearize``), the row bounds, the multipliers moved a stage on."""
+        w0, lbg, ubg = request.w0, request.lbg, request.ubg
+        lam_g0, lam_x0, shift = request.lam_g0, request.lam_x0, request.shift
         self.lbg, self.ubg = np.asarray(lbg, dtype=float), np.asarray(ubg, dtype=float)
         lam_c, lam_v = np.zeros(self.ng), np.zeros(self.nw)
         if lam_g0 is not None and lam_x0 is not None:

@@ -16,8 +16,8 @@ from aeromanip.robot.spec import Inertial, Joint, Platform, RobotSpec
 from aeromanip.robot.urdf import UrdfArm, arm_from_urdf, arm_from_urdf_string
 from aeromanip.robot.urdf_export import robot_to_urdf
 
-ROOT = Path(__file__).resolve().parents[1]
-DATA = Path(__file__).resolve().parent / "data"
+ROOT = Path(__file__).resolve().parents[2]
+DATA = Path(__file__).resolve().parents[1] / "data"
 BUILTIN = ["x8-3dof", "planar-2dof"]
 MJ_COMPILER = '<mujoco><compiler fusestatic="false" discardvisual="true"/></mujoco>'
 

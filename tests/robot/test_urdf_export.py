@@ -31,7 +31,7 @@ from aeromanip.robot.urdf_export import (
     robot_to_urdf,
 )
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "robots" / "urdf-arm.toml"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "robots" / "urdf-arm.toml"
 INERTIA_KEYS = ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
 GREY = "aeromanip_grey"
 

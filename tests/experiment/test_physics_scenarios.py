@@ -121,7 +121,8 @@ def test_at_10_hz_the_papers_model_fights_the_inner_loop_and_the_fitted_one_flie
 
 
 def test_with_the_platforms_lag_in_the_model_the_hierarchy_keeps_the_tracking(tmp_path):
-    """The EE-error target in physics (`waypoints-physics`, 2 Hz): with the paper's model
+    """The hierarchy's tracking target in physics (`waypoints-physics`, 2 Hz): with the
+    paper's model
     the CoG level hands the end effector's motion to the platform, whose lag the model
     cannot see (hierarchical error ~1.2x tracking-only's); with the identified lag in the
     model, the hierarchical EE RMSE is within 5 % (or 0.02 mm) of tracking-only's, the

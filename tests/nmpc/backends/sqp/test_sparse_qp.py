@@ -13,6 +13,7 @@ import pytest
 
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.scenario import load_scenarios
+from aeromanip.nmpc.backends import SolveRequest
 from aeromanip.nmpc.backends.sqp.convexify import CONVEX_TOL, convexified_blocks
 from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
 from aeromanip.nmpc.backends.sqp.solver import (
@@ -41,7 +42,7 @@ def sparse_model(small_problem):
     tr, model = strat.transcription, strat.solvers[0].backend.model
     assert type(model).__name__ == "SparseQpModel"
     p = tr.parameters(X0, np.zeros(7), small_problem.stage_params(0.0))
-    model.start(tr.pack(*rest(small_problem), np.zeros(7)), p, tr.lbg, tr.ubg, None, None, True)
+    model.start(SolveRequest(tr.pack(*rest(small_problem), np.zeros(7)), p, tr.lbg, tr.ubg))
     return small_problem, tr, model, p
 
 
@@ -95,12 +96,12 @@ def test_the_sparse_model_takes_the_multipliers_only_when_both_come(sparse_model
     rng = np.random.default_rng(3)
     lam_g, lam_x = rng.normal(size=tr.g.numel()), rng.normal(size=w.size)
     for given in ((lam_g, None), (None, lam_x)):
-        _, lam_c, lam_v = model.start(w, p, tr.lbg, tr.ubg, *given, True)
+        _, lam_c, lam_v = model.start(SolveRequest(w, p, tr.lbg, tr.ubg, *given, True))
         assert not lam_c.any() and not lam_v.any()
         assert lam_c.shape == (tr.g.numel(),) and lam_v.shape == w.shape
-    _, lam_c, lam_v = model.start(w, p, tr.lbg, tr.ubg, lam_g, lam_x, False)
+    _, lam_c, lam_v = model.start(SolveRequest(w, p, tr.lbg, tr.ubg, lam_g, lam_x, False))
     assert np.array_equal(lam_c, lam_g) and np.array_equal(lam_v, lam_x)
-    _, lam_c, lam_v = model.start(w, p, tr.lbg, tr.ubg, lam_g, lam_x, True)
+    _, lam_c, lam_v = model.start(SolveRequest(w, p, tr.lbg, tr.ubg, lam_g, lam_x, True))
     assert np.array_equal(lam_c, lam_g[tr.shift_g]) and np.array_equal(lam_v, lam_x[tr.shift_w])
 
 
@@ -231,7 +232,7 @@ def sparse_clearance_point(accel: bool):
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
     U = np.tile([0.1, -0.05, 0.02, 0.1, 0.2, -0.1, 0.1], (pb.horizon, 1))
     w = tr.pack(*rest(pb, U), np.zeros(7))
-    model.start(w, p, tr.lbg, tr.ubg, None, None, True)
+    model.start(SolveRequest(w, p, tr.lbg, tr.ubg, None, None, True))
     lin = model.linearize(w, p)
     return tr, model, p, w, lin
 
@@ -377,7 +378,7 @@ def test_the_sparse_gauss_newton_blocks_carry_the_stagewise_cost_rows_curvature(
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
     U = np.tile([0.1, -0.05, 0.02, 0.1, 0.2, -0.1, 0.1], (pb.horizon, 1))
     w = tr.pack(*rest(pb, U), np.zeros(7))
-    model.start(w, p, tr.lbg, tr.ubg, None, None, True)
+    model.start(SolveRequest(w, p, tr.lbg, tr.ubg, None, None, True))
     lin = model.linearize(w, p)
     lam = np.random.default_rng(6).normal(size=tr.g.numel())
     Hs, HT = model._hessian_blocks(lin, lam, p, False)

@@ -420,9 +420,9 @@ def test_hierarchy_levels_start_from_documented_guesses(backend, mode):
     starts = [[], []]
     for i, st in enumerate(ctrl.strategy.solvers):
 
-        def record(w0, *args, _solve=st.backend.solve, _i=i, **kw):
-            starts[_i].append(np.array(w0))
-            return _solve(w0, *args, **kw)
+        def record(request, _solve=st.backend.solve, _i=i):
+            starts[_i].append(np.array(request.w0))
+            return _solve(request)
 
         st.backend.solve = record
     first = ctrl.step(X0, 0.0)
@@ -531,3 +531,28 @@ def test_fallback_applies_clipped_successive_plan_commands_then_stops():
     np.testing.assert_array_equal(X, np.repeat(x[None], 6, 0))
     np.testing.assert_array_equal(U, np.zeros((5, NX)))
     np.testing.assert_array_equal(V, np.zeros((6, NX)))  # zero applied at the stop
+
+
+@pytest.mark.parametrize(
+    "backend, own",
+    [
+        ("sqp", True),
+        ("sqp-rti", True),
+        ("aeromanip.nmpc.backends.sqp.solver:SqpBackend", True),  # a user's name for an SQP
+        ("ipopt", False),
+    ],
+)
+def test_a_relaxed_level_starts_from_its_own_guess_when_the_backend_needs_no_feasible_start(
+    backend, own
+):
+    """A relaxed (``stagewise``) level: the choice follows
+    ``Backend.needs_feasible_start`` (the SQP: False), not the
+    name: an SQP named ``"package.module:Class"`` starts from its own guess too; a strict
+    hierarchy never does (it starts from the level above's solution)."""
+    from nmpc_helpers import FAST, make_problem
+
+    opts = FAST if backend != "ipopt" else None
+    relaxed = Hierarchical(make_problem(horizon=2), "stagewise", backend=backend, options=opts)
+    assert relaxed.own_guess is own
+    strict = Hierarchical(make_problem(horizon=2), "strict", backend=backend, options=opts)
+    assert strict.own_guess is False

@@ -3,13 +3,14 @@ given (damping, Hessian, multipliers), the merit's penalty, the count of accepta
 iterations, a cost that is not a number. Each expectation follows from the rules in the
 module's docstrings (the damping schedule, ``_go_exact``, ``PENALTY_MARGIN`` /
 ``PENALTY_FLOOR``), worked out by hand here. (The IPOPT seed's decisions:
-``test_sqp_seed.py``.)"""
+``tests/nmpc/backends/sqp/test_ipopt_seed.py``.)"""
 
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from aeromanip.nmpc.backends import SolveRequest
 from aeromanip.nmpc.backends.sqp import solver as sqp_module
 from aeromanip.nmpc.backends.sqp.qp_model import Linearization, QpResult
 from aeromanip.nmpc.backends.sqp.solver import (
@@ -36,8 +37,8 @@ class ScriptedModel:
         self.cut = cut or {}  # QP index -> the longest step its line search accepts
         self.calls = []
 
-    def start(self, w0, p, lbg, ubg, lam_g0, lam_x0, shift):
-        lam_c = np.zeros(1) if lam_g0 is None else np.asarray(lam_g0, dtype=float)
+    def start(self, request):
+        lam_c = np.zeros(1) if request.cold else np.asarray(request.lam_g0, dtype=float)
         return np.zeros(1), lam_c, np.zeros(1)
 
     def linearize(self, v, p):
@@ -83,7 +84,9 @@ def backend(model, **opts):
 
 def run(sqp, warm=False):
     lam = np.zeros(1) if warm else None
-    return sqp._sqp(np.zeros(1), np.zeros(0), np.zeros(1), np.zeros(1), lam, lam, False)
+    return sqp._sqp(
+        SolveRequest(np.zeros(1), np.zeros(0), np.zeros(1), np.zeros(1), lam, lam, False)
+    )
 
 
 def test_each_qp_gets_the_damping_the_last_step_left_and_the_last_qps_multipliers():

@@ -7,26 +7,17 @@ import numpy as np
 import pytest
 
 from aeromanip.errors import ConfigError
+from aeromanip.nmpc.backends import SolveRequest
 from aeromanip.nmpc.constraints import Bounds, Clearance
 from aeromanip.nmpc.controller import Controller
 from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.strategies import Hierarchical, Weighted
 from aeromanip.references import Constant
 from aeromanip.robot.loader import load_robot
-from aeromanip.tasks import CogAlignment, ControlRate, EndEffectorTracking
+from aeromanip.tasks import ControlRate, EndEffectorTracking
+from nmpc_helpers import FAST, X0, make_problem
 
 X8 = load_robot("x8-3dof")
-X0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
-FAST = {"codegen": False}  # in-process Functions: no compile time in most tests
-
-
-def make_problem(levels=(0, 1), target=(0.5, 0.3, 0.6), box=None, horizon=10):
-    pb = Problem(X8, horizon, 0.5, Bounds.from_robot(X8, platform_box=box))
-    pb.add_task(EndEffectorTracking(Constant(list(target))), weight=10.0, level=levels[0])
-    pb.add_task(CogAlignment(), weight=1.0, level=levels[1])
-    pb.add_task(ControlRate(), weight=0.1, level=None)
-    pb.add_constraint(Clearance(0.1))
-    return pb
 
 
 def check_feasible(pb, cmd, tol=1e-6):
@@ -289,7 +280,7 @@ def stagewise_level():
     p = tr.parameters(X0, np.zeros(7), h.problem.stage_params(0.0))
     U = np.tile([0.05, -0.02, 0.01, 0.1, 0.1, -0.1, 0.05], (tr.N, 1))
     w = tr.pack(X0 + np.vstack([np.zeros(7), np.cumsum(0.5 * U, axis=0)]), U, np.zeros(7))
-    v, _, _ = model.start(w, p, tr.lbg, tr.ubg, None, None, True)
+    v, _, _ = model.start(SolveRequest(w, p, tr.lbg, tr.ubg, None, None, True))
     return model, v, p
 
 
@@ -334,18 +325,18 @@ def test_the_dense_models_start_takes_clips_and_shifts_what_it_is_given(stagewis
     w0 = np.zeros(tr.w.numel())
     w0[model.u_idx] = rng.uniform(-3.0, 3.0, nU)  # the command bounds are +-1 (m/s, rad/s)
     lam_g, lam_x = rng.normal(size=tr.g.numel()), rng.normal(size=tr.w.numel())
-    U, lam_c, lam_u = model.start(w0, p, tr.lbg, tr.ubg, lam_g, lam_x, False)
+    U, lam_c, lam_u = model.start(SolveRequest(w0, p, tr.lbg, tr.ubg, lam_g, lam_x, False))
     np.testing.assert_array_equal(U, np.clip(w0[model.u_idx], model.lbU, model.ubU))
     assert U.min() == model.lbU.min() and U.max() == model.ubU.max()
     np.testing.assert_array_equal(lam_c, np.r_[lam_g[model.keep], lam_x[model.state_idx]])
     np.testing.assert_array_equal(lam_u, lam_x[model.u_idx])
     model.qp.lam_a[:] = lam_c
-    _, shifted_c, shifted_u = model.start(w0, p, tr.lbg, tr.ubg, lam_g, lam_x, True)
+    _, shifted_c, shifted_u = model.start(SolveRequest(w0, p, tr.lbg, tr.ubg, lam_g, lam_x, True))
     np.testing.assert_array_equal(shifted_c, lam_c[model.qp.shift_rows])
     np.testing.assert_array_equal(model.qp.lam_a, lam_c[model.qp.shift_rows])
     np.testing.assert_array_equal(shifted_u, np.r_[lam_u[nx:], lam_u[-nx:]])
     for only in ((lam_g, None), (None, lam_x)):  # one of the two: none used
-        _, c, u = model.start(w0, p, tr.lbg, tr.ubg, *only, False)
+        _, c, u = model.start(SolveRequest(w0, p, tr.lbg, tr.ubg, *only, False))
         assert not c.any() and not u.any()
     assert not model.qp.lam_a.any()  # the cold start (no row multipliers) forgot them
     # the hierarchy's rows bind by design: in every QP's first round

@@ -208,7 +208,7 @@ def _corner_rmse(*sets):
 
 
 def test_the_hierarchy_tracks_through_the_box_corner_as_tracking_alone_does():
-    """The EE-error target on the stretch of `flight` that missed it: the hierarchical EE
+    """The hierarchy's target on the stretch of `flight` that missed it: the hierarchical EE
     RMSE within 5 % or 0.02 mm of tracking-only's. With the regulariser at full weight
     in the tracking level, the same stretch misses by 1 mm. (The CoG offset is smaller
     than tracking-only's, ~3x here, where the arm's pan swings; ~40x over the flight.)"""

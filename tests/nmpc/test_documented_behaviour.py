@@ -5,8 +5,9 @@ Truths: ``base.casadi_message`` (one line, without suggestions or listings),
 says), ``codegen.limit_blas_threads`` (read back with OpenBLAS's own getter), the QP
 solvers themselves (a failed QP reports the status DAQP / qpOASES give for the same QP),
 and the controller's and transcription's docstrings (warm starts, budgets, refusals,
-path rows). The SQP's own contracts: test_sqp_contract.py; its sparse model:
-test_sparse_model.py; the ``nlpsol`` backends: test_nlpsol_contract.py.
+path rows). The SQP's own contracts: tests/nmpc/backends/sqp/test_solver_options.py;
+its sparse model: tests/nmpc/backends/sqp/test_sparse_qp.py; the ``nlpsol`` backends:
+tests/nmpc/backends/test_nlpsol.py.
 """
 
 from __future__ import annotations
@@ -381,8 +382,8 @@ class Scripted:
     def __init__(self, *answers):
         self.answers, self.calls = list(answers), []
 
-    def solve(self, w0, p, lbg, ubg, lam_g0=None, lam_x0=None, shift=True):
-        self.calls.append((np.array(w0), lam_g0, lam_x0, (p, lbg, ubg)))
+    def solve(self, r):
+        self.calls.append((np.array(r.w0), r.lam_g0, r.lam_x0, (r.p, r.lbg, r.ubg)))
         return self.answers.pop(0)
 
 

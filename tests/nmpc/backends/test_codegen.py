@@ -14,7 +14,7 @@ from aeromanip.nmpc.backends import codegen
 from aeromanip.nmpc.backends.cache import CacheEntry, sha256_of
 from aeromanip.nmpc.backends.codegen import compiled
 from aeromanip.nmpc.controller import Controller
-from test_sqp import FAST, X0, make_problem
+from nmpc_helpers import FAST, X0, make_problem
 
 pytestmark = pytest.mark.codegen
 

@@ -15,7 +15,7 @@ from aeromanip.robot.kinematics import Kinematics
 from aeromanip.robot.loader import load_robot
 from aeromanip.robot.urdf_export import robot_to_urdf
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "robots" / "urdf-arm.toml"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "robots" / "urdf-arm.toml"
 ROBOTS = ["planar-2dof", "x8-3dof", str(EXAMPLE)]
 
 

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from aeromanip.errors import ConfigError
+from aeromanip.nmpc.backends import SolveRequest
 from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
 from aeromanip.nmpc.backends.sqp.solver import (
     DEFAULTS,
@@ -195,7 +196,7 @@ def test_sqp_returns_multipliers_that_make_its_answer_stationary(small_problem, 
     strat = Weighted(pb, "sqp", opts)
     tr, backend = strat.transcription, strat.solvers[0].backend
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
-    res = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
+    res = backend.solve(SolveRequest(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg))
     if floored:  # a state bound binds: its multiplier is in play
         assert np.abs(res.lam_x[tr.index_x[1:].ravel()]).max() > 1e-6
     if case == "row-active":  # a clearance row (bounded below only) binds
@@ -450,11 +451,11 @@ def test_a_warm_sqp_solve_moves_its_multipliers_a_stage_on_by_default():
     backend = Weighted(pb, "sqp", {"codegen": False, "seed": "none"}).solvers[0].backend
     tr, shifts = backend.tr, []
     start = backend.model.start
-    backend.model.start = lambda *a: shifts.append(a[-1]) or start(*a)
+    backend.model.start = lambda r: shifts.append(r.shift) or start(r)
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
     w0 = tr.pack(*rest(pb), np.zeros(7))
-    first = backend.solve(w0, p, tr.lbg, tr.ubg)
-    backend.solve(first.w, p, tr.lbg, tr.ubg, first.lam_g, first.lam_x)
+    first = backend.solve(SolveRequest(w0, p, tr.lbg, tr.ubg))
+    backend.solve(SolveRequest(first.w, p, tr.lbg, tr.ubg, first.lam_g, first.lam_x))
     assert shifts == [True, True]
 
 
@@ -473,7 +474,7 @@ def test_an_sqp_solve_reports_its_qps_and_its_time(rti):
     backend.model.step = lambda *a, **kw: qps.append(1) or step(*a, **kw)
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
     t0 = time.perf_counter()
-    res = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
+    res = backend.solve(SolveRequest(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg))
     wall = time.perf_counter() - t0
     assert res.iterations == len(qps)
     assert len(qps) == 1 if rti else len(qps) >= 3
@@ -495,9 +496,11 @@ def _near_a_binding_reach(qpsol: str, *constraints: UserConstraint) -> tuple:
     tr, backend = strat.transcription, strat.solvers[0].backend
     model = backend.model
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
-    sol = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
+    sol = backend.solve(SolveRequest(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg))
     assert sol.success
-    v, lam_c, lam_v = model.start(sol.w, p, tr.lbg, tr.ubg, sol.lam_g, sol.lam_x, False)
+    v, lam_c, lam_v = model.start(
+        SolveRequest(sol.w, p, tr.lbg, tr.ubg, sol.lam_g, sol.lam_x, False)
+    )
     v = v + 0.02 * np.random.default_rng(1).normal(size=v.size)  # near the solution
     return tr, model, p, v, model.linearize(v, p), lam_c, lam_v
 

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from aeromanip.errors import ConfigError
+from aeromanip.nmpc.backends import SolveRequest
 from aeromanip.nmpc.constraints import Bounds
 from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.strategies import Weighted
@@ -66,10 +67,12 @@ def test_a_solver_that_raises_is_a_failed_solve_with_its_last_line(raised, statu
     backend.solver = Raising()
     t0 = time.perf_counter()
     res = backend.solve(
-        tr.pack(*rest(pb), np.zeros(7)),
-        tr.parameters(X0, np.zeros(7), pb.stage_params(0.0)),
-        tr.lbg,
-        tr.ubg,
+        SolveRequest(
+            tr.pack(*rest(pb), np.zeros(7)),
+            tr.parameters(X0, np.zeros(7), pb.stage_params(0.0)),
+            tr.lbg,
+            tr.ubg,
+        )
     )
     assert (res.success, res.status, res.iterations) == (False, status, 4)
     assert np.isnan(res.w).all() and np.isnan(res.f)
@@ -103,9 +106,9 @@ def test_an_ipopt_solve_cut_by_ctrl_c_raises_it_again_and_a_solve_reports_its_ti
     t0 = time.perf_counter()
     if interrupted:
         with pytest.raises(KeyboardInterrupt):
-            backend.solve(*args, tr.lbg, tr.ubg)
+            backend.solve(SolveRequest(*args, tr.lbg, tr.ubg))
     else:
-        res = backend.solve(*args, tr.lbg, tr.ubg)
+        res = backend.solve(SolveRequest(*args, tr.lbg, tr.ubg))
         assert res.success and 0 < res.solve_time_s <= time.perf_counter() - t0
 
 
@@ -171,11 +174,11 @@ def test_a_warm_ipopt_solve_starts_from_the_multipliers_moved_a_stage_on_by_defa
 
     backend.solver = Recording(backend.solver)
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
-    first = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
-    backend.solve(first.w, p, tr.lbg, tr.ubg, first.lam_g, first.lam_x)
+    first = backend.solve(SolveRequest(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg))
+    backend.solve(SolveRequest(first.w, p, tr.lbg, tr.ubg, first.lam_g, first.lam_x))
     np.testing.assert_array_equal(given[1]["lam_g0"], first.lam_g[tr.shift_g])
     np.testing.assert_array_equal(given[1]["lam_x0"], first.lam_x[tr.shift_w])
-    backend.solve(first.w, p, tr.lbg, tr.ubg, first.lam_g, first.lam_x, shift=False)
+    backend.solve(SolveRequest(first.w, p, tr.lbg, tr.ubg, first.lam_g, first.lam_x, shift=False))
     np.testing.assert_array_equal(given[2]["lam_g0"], first.lam_g)  # this step's: as given
     np.testing.assert_array_equal(given[2]["lam_x0"], first.lam_x)
 
@@ -186,7 +189,7 @@ def test_a_successful_solve_reports_the_nlps_cost_and_rows_at_its_answer():
     pb, backend = _tracking_ipopt()
     tr = backend.tr
     p = tr.parameters(X0, np.zeros(7), pb.stage_params(0.0))
-    res = backend.solve(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg)
+    res = backend.solve(SolveRequest(tr.pack(*rest(pb), np.zeros(7)), p, tr.lbg, tr.ubg))
     f, g = (np.asarray(v).ravel() for v in ca.Function("fg", [tr.w, tr.p], [tr.f, tr.g])(res.w, p))
     assert res.success and res.status == "Solve_Succeeded"
     assert res.f == pytest.approx(float(f[0]), rel=1e-12) and res.f > 0.0

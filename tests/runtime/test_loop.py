@@ -4,7 +4,7 @@ that holds still where the scenario starts, and records every setpoint it is sen
 The reference sets off at mission time 0, so the vehicle must be flying a plan from
 then on: a cold first solve (hundreds of ms) made after the clock started held it still
 meanwhile, and the flight over MAVLink tracked 1.8x worse than in physics over its
-first 5 s (tests/test_flight_mavlink.py).
+first 5 s (tests/mavlink/test_fly_against_sitl.py).
 """
 
 import threading

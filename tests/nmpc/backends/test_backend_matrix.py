@@ -54,7 +54,7 @@ def same(a, b):
     return bool(np.all(np.abs(a - b) <= REL * np.maximum(np.abs(b), 1e-8)))
 
 
-KNOWN = {  # cases that fail today, each with its issue: they must start passing there
+KNOWN = {  # cases that fail today, each with its reason: strict, so a fix is noticed
     ("clearance", "", "fatrop"): "fatrop fails from rest with the clearance binding",
     **{
         (name, variant, "fatrop"): "with the tracking level's regulariser at 10 %, "

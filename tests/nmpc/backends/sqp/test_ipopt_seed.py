@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from aeromanip.errors import ConfigError
+from aeromanip.nmpc.backends import SolveRequest
 from aeromanip.nmpc.backends.base import NlpResult
 from aeromanip.nmpc.backends.sqp.solver import SEED_FLOOR, SqpBackend, _cheaper
 from aeromanip.nmpc.constraints import Bounds
@@ -15,7 +16,7 @@ from aeromanip.nmpc.strategies import Weighted
 from aeromanip.references import Constant
 from aeromanip.robot.loader import load_robot
 from aeromanip.tasks import ControlRate, EndEffectorTracking
-from test_sqp import make_problem
+from nmpc_helpers import make_problem
 
 
 @pytest.mark.parametrize(
@@ -76,10 +77,12 @@ def test_an_answer_far_above_the_promise_is_solved_again_from_an_ipopt_seed():
         tr, backend = strat.transcription, strat.solvers[0].backend
         w0 = tr.pack(np.tile(x0, (7, 1)), np.zeros((6, 7)), np.zeros(7))
         p = tr.parameters(x0, np.zeros(7), pb.stage_params(0.0))
-        first = backend.solve(w0, p, tr.lbg, tr.ubg)
+        first = backend.solve(SolveRequest(w0, p, tr.lbg, tr.ubg))
         tracking.reference = Constant([0.4, 0.0, 0.6])  # the jump
         p2 = tr.parameters(x0, np.zeros(7), pb.stage_params(0.0))
-        second = backend.solve(first.w, p2, tr.lbg, tr.ubg, first.lam_g, first.lam_x, False)
+        second = backend.solve(
+            SolveRequest(first.w, p2, tr.lbg, tr.ubg, first.lam_g, first.lam_x, False)
+        )
         assert first.success and second.success
         assert second.f > backend.opts["seed_ratio"] * first.f
         seeds[seed] = backend.seeds
@@ -98,18 +101,22 @@ def seeded_backend():
     sqp = strat.solvers[0].backend
     script = SimpleNamespace(sqp=[], ipopt=[], sqp_calls=[])
 
-    def fake_sqp(w0, p, lbg, ubg, lam_g0, lam_x0, shift):
-        script.sqp_calls.append((w0, lam_g0, lam_x0, shift))
+    def fake_sqp(r):
+        script.sqp_calls.append((r.w0, r.lam_g0, r.lam_x0, r.shift))
         return script.sqp.pop(0)
 
+    def fake_ipopt(r):
+        assert r.cold  # the seed is a cold start
+        return script.ipopt.pop(0)
+
     sqp._sqp = fake_sqp
-    sqp._ipopt = SimpleNamespace(solve=lambda w0, p, lbg, ubg: script.ipopt.pop(0))
+    sqp._ipopt = SimpleNamespace(solve=fake_ipopt)
     return sqp, script
 
 
 def solve(sqp, warm=True):
     lam = np.zeros(1) if warm else None
-    return sqp.solve(np.zeros(1), np.zeros(0), np.zeros(1), np.zeros(1), lam, lam)
+    return sqp.solve(SolveRequest(np.zeros(1), np.zeros(0), np.zeros(1), np.zeros(1), lam, lam))
 
 
 def test_a_first_warm_solve_has_no_promise_to_be_measured_against(seeded_backend):

@@ -26,7 +26,7 @@ from aeromanip.cli import main
 from aeromanip.errors import ConfigError, StateError
 from aeromanip.experiment.runlog import RunLog
 
-ROBOT_TOML = Path(__file__).resolve().parents[1] / "src" / "aeromanip" / "robots" / "x8-3dof.toml"
+ROBOT_TOML = Path(__file__).resolve().parents[2] / "src" / "aeromanip" / "robots" / "x8-3dof.toml"
 # waypoints with one weighted controller and no variants: DIR/log.csv, 2 steps a second
 TINY_SCENARIO = """\
 extends = "waypoints"

@@ -325,8 +325,9 @@ def test_out_of_iterations_retry_goes_on_from_the_last_iterate():
         def __init__(self, first_status):
             self.first_status = first_status
 
-        def solve(self, w0, p, lbg, ubg, lam_g0=None, lam_x0=None):
-            seen.append((w0.copy(), lam_g0 is not None))
+        def solve(self, r):
+            w0 = r.w0
+            seen.append((w0.copy(), not r.cold))
             ok = len(seen) % 2 == 0
             return NlpResult(
                 w0 + 1.0,
@@ -383,3 +384,24 @@ def test_a_task_that_is_nan_stops_the_robot_with_a_status(backend):
     assert cmd.message.startswith("Invalid_Number_Detected"), cmd.message
     # only fatrop, which would spin on it, has the guess checked before it starts
     assert ("at the initial guess" in cmd.message) == (backend == "fatrop"), cmd.message
+
+
+def test_strategies_are_registered_by_name_or_loaded_as_package_module_class():
+    """``STRATEGIES`` holds the built-ins; ``"package.module:Class"`` loads a ``Strategy``
+    subclass (here the built-in ``Weighted`` by its path: the same answer as by name);
+    hierarchy options for a strategy that is not ``by_level`` and unknown names are one
+    ``ConfigError`` naming the key."""
+    from aeromanip.nmpc.strategies import STRATEGIES, Hierarchical, Strategy, Weighted
+
+    assert STRATEGIES.names() == ("hierarchical", "weighted")
+    assert issubclass(Weighted, Strategy) and issubclass(Hierarchical, Strategy)
+    assert (Weighted.by_level, Hierarchical.by_level) == (False, True)
+    pb = make_problem(levels=(0, 0))
+    x0 = np.array([0.0, 0.0, 1.0, 0.0, 0.3, 0.4, -0.8])
+    by_name = Controller(pb, "weighted").step(x0, 0.0)
+    by_path = Controller(pb, "aeromanip.nmpc.strategies:Weighted").step(x0, 0.0)
+    np.testing.assert_allclose(by_path.u, by_name.u, atol=1e-9)
+    with pytest.raises(ConfigError, match=r"^hierarchy: options given but strategy is 'weighted'"):
+        Controller(pb, "weighted", hierarchy={"mode": "strict"})
+    with pytest.raises(ConfigError, match=r"^strategy: 'nested' is not one of"):
+        Controller(pb, "nested")

@@ -286,3 +286,21 @@ def test_factory_kinds(tmp_path):
 def test_factory_errors_name_key_path(data, match):
     with pytest.raises(ConfigError, match=match):
         reference_from_table(Table(data, "scenario.reference"))
+
+
+def test_what_a_reference_tells_the_experiment_markers_and_phases():
+    """``markers()``: a waypoint reference's points, none for the others; ``motion_phases()``:
+    a sinusoid reference's phases back to back, each as long as given, along its unit
+    direction; none for the others."""
+    pts = [[0.0, 0.0, 1.0], [0.5, 0.0, 1.0], [0.5, 0.5, 1.2]]
+    wp = Waypoints(pts, [0.0, 2.0, 5.0])
+    np.testing.assert_array_equal(wp.markers(), pts)
+    assert wp.motion_phases() is None
+    sin = SinusoidPhases([0, 0, 1], [0, 2, 0], [(10.0, 0.1, 0.1), (20.0, 0.5, 0.05)])
+    assert sin.markers() is None
+    (a0, a1, da), (b0, b1, db) = sin.motion_phases()
+    assert (a0, a1, b0, b1) == (0.0, 10.0, 10.0, 30.0)
+    np.testing.assert_allclose(da, [0.0, 1.0, 0.0])
+    np.testing.assert_allclose(db, [0.0, 1.0, 0.0])
+    assert Constant([0.1, 0.2, 0.3]).markers() is None
+    assert Constant([0.1, 0.2, 0.3]).motion_phases() is None
