@@ -2,7 +2,8 @@
 
 The bench's closed loop (``bench.controller_speed``: the flight problem, ideal inner loop) is run
 for one variant with every ``Buffered`` Function call timed by its name: the QP solver
-(DAQP or HPIPM through CasADi), the model's compiled Functions (linearisation, merit,
+(DAQP or HPIPM through CasADi), the compiled SQP loop (the whole solve in C: its model
+calls and QPs are inside it), the model's compiled Functions (linearisation, merit,
 Hessian, multipliers, logged costs), and the IPOPT solve that seeds the SQP on a cold
 start (the first step). The rest of the step is Python and NumPy (the SQP
 loop, the QP's row screening, reference sampling, bounds, warm start). A second pass under
@@ -17,7 +18,7 @@ import cProfile
 import pstats
 import time
 from collections import defaultdict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -26,6 +27,7 @@ from aeromanip.bench.controller_speed import VARIANTS, _stepper, bench_scenario
 from aeromanip.nmpc.backends import codegen
 from aeromanip.nmpc.backends.codegen import limit_blas_threads
 from aeromanip.nmpc.backends.nlpsol import NlpBackend
+from aeromanip.nmpc.backends.sqp.compiled_loop import CompiledLoop
 
 PROFILED = ("weighted", "rti", "hierarchical")  # the variants `aeromanip bench profile` runs
 # part of a Function's name -> category (first match; the rest is "other compiled")
@@ -41,6 +43,7 @@ CATEGORIES = (
 )
 PYTHON = "Python and NumPy"
 SEED = "IPOPT seed (cold start, Python included)"
+COMPILED_LOOP = "compiled SQP loop (model, DAQP, line search: C)"
 TOP_PYTHON = 8  # Python functions listed per variant
 
 
@@ -48,37 +51,43 @@ def _category(name: str) -> str:
     return next((c for part, c in CATEGORIES if part in name), "other compiled")
 
 
+def _timed(method: Callable, acc: dict[str, float], category: str) -> Callable:
+    """``method`` adding its run time [s] to ``acc[category]``."""
+
+    def timed(*args: Any, **kwargs: Any) -> Any:
+        t0 = time.perf_counter()
+        try:
+            return method(*args, **kwargs)
+        finally:
+            acc[category] += time.perf_counter() - t0
+
+    return timed
+
+
 @contextlib.contextmanager
 def timed_functions(acc: dict[str, float]) -> Iterator[None]:
     """While inside, every new ``Buffered`` adds its run time [s] to ``acc[category]``,
-    and every ``NlpBackend`` solve (the SQP's IPOPT seed) to ``acc[SEED]``."""
-    original, nlp_solve = codegen.Buffered.__init__, NlpBackend.solve
-
-    def timed_solve(self: NlpBackend, *args: Any, **kwargs: Any) -> Any:
-        t0 = time.perf_counter()
-        try:
-            return nlp_solve(self, *args, **kwargs)
-        finally:
-            acc[SEED] += time.perf_counter() - t0
+    every ``NlpBackend`` solve (the SQP's IPOPT seed) to ``acc[SEED]``, and every call
+    of the compiled SQP loop to ``acc[COMPILED_LOOP]``."""
+    original, nlp_solve, loop_solve = (
+        codegen.Buffered.__init__,
+        NlpBackend.solve,
+        CompiledLoop.solve,
+    )
 
     def init(self: codegen.Buffered, f: Any) -> None:
         original(self, f)
-        run, cat = self.run, _category(f.name())
-
-        def timed_run() -> None:
-            t0 = time.perf_counter()
-            run()
-            acc[cat] += time.perf_counter() - t0
-
-        self.run = timed_run
+        self.run = _timed(self.run, acc, _category(f.name()))
 
     codegen.Buffered.__init__ = init  # type: ignore[method-assign]
-    NlpBackend.solve = timed_solve  # type: ignore[method-assign]
+    NlpBackend.solve = _timed(nlp_solve, acc, SEED)  # type: ignore[method-assign]
+    CompiledLoop.solve = _timed(loop_solve, acc, COMPILED_LOOP)  # type: ignore[method-assign]
     try:
         yield
     finally:
         codegen.Buffered.__init__ = original  # type: ignore[method-assign]
         NlpBackend.solve = nlp_solve  # type: ignore[method-assign]
+        CompiledLoop.solve = loop_solve  # type: ignore[method-assign]
 
 
 def _loop(sc: Any, step: Any) -> list[float]:

@@ -103,6 +103,16 @@ def compiled_all(fs: Sequence[ca.Function], enabled: bool = True) -> list[ca.Fun
     return [_load(f, e, f.name() not in failed) for f, e in zip(fs, entries, strict=True)]
 
 
+def library_of(f: ca.Function) -> Path | None:
+    """The cached, verified library that ``compiled(f)`` loaded ``f`` from (``None``: it
+    evaluates in-process); its symbols are ``f.name()`` and ``f.name() + "_work"``."""
+    cc = _compiler()
+    if cc is None or os.environ.get("AEROMANIP_CODEGEN", "1") == "0":
+        return None
+    entry = CacheEntry(cache_dir() / f"{f.name()}-{_key(f, cc)}.so")
+    return entry.lib if entry.valid() else None
+
+
 def announce_large_build(fs: Sequence[ca.Function]) -> bool:
     """Warn before compiling Functions of more than ``LARGE_BUILD`` instructions in all
     (the compiler's time and memory grow with them); return whether it warned."""

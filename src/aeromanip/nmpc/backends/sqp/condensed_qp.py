@@ -93,6 +93,7 @@ class CondensedQpModel:
             lam = ca.SX.sym("lam", gc.numel())
             Hf = ca.densify(ca.hessian(ca.sumsqr(R) + ca.dot(lam, gc), U)[0])
             fs.append(ca.Function(f"aeromanip_sqp_hessl_{tag}", [U, p, lam], [Hf]))
+        self.sources = fs  # as generated: the compiled loop finds their libraries by them
         fs = compiled_all(fs, self.opts["codegen"])  # built in parallel, once, cached
         self.data, self.merit_f = Buffered(fs[0]), Buffered(fs[1])
         tr.use_stage_costs(fs[2])

@@ -50,16 +50,24 @@ def status_text(solver: str, status: Any) -> str:
     return str(status)
 
 
-def _failure(solver: str, stats: dict[str, Any], d: np.ndarray, excess: float) -> str:
-    """Why a QP answer is not taken: the solver's status and, if the solver reported
-    success, what is wrong with its answer (not finite, or across its bounds by more
-    than ``CROSS_TOL``: ill-conditioned data)."""
-    status = status_text(solver, stats.get("return_status", "?"))
-    if not stats.get("success"):
+def failure_text(
+    solver: str, return_status: Any, success: bool, finite: bool, excess: float
+) -> str:
+    """Why a QP answer is not taken: the solver's status (if it did not report success)
+    or what is wrong with its answer (not finite, or across its bounds by more than
+    ``CROSS_TOL``: ill-conditioned data)."""
+    status = status_text(solver, return_status)
+    if not success:
         return status
-    if not np.isfinite(d).all():
+    if not finite:
         return f"{status}, but the answer is not finite"
     return f"{status}, but the answer crosses its bounds by {excess:.1e}"
+
+
+def _failure(solver: str, stats: dict[str, Any], d: np.ndarray, excess: float) -> str:
+    """``failure_text`` from a CasADi QP solver's stats."""
+    status, success = stats.get("return_status", "?"), bool(stats.get("success"))
+    return failure_text(solver, status, success, bool(np.isfinite(d).all()), excess)
 
 
 @dataclass

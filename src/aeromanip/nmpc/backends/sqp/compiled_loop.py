@@ -1,0 +1,200 @@
+"""The condensed model's SQP loop in compiled C: one call per solve.
+
+``condensed_loop.c`` runs the loop of ``solver.SqpBackend._sqp`` on the condensed model
+(``condensed_qp``) step for step: the model's generated Functions (already compiled
+by ``codegen``) are called through their C symbols, and the QP is solved by DAQP's C
+library, as CasADi's own DAQP interface calls it (the static library and headers come
+with CasADi's wheel). The loop itself is built once per machine into the compile cache
+(``<cache>/aeromanip_condensed_loop-<hash>.so``, checked like every entry). The loop is
+used where it applies (``solver_options.compiled_loop``, the condensed model with
+DAQP, the model compiled); elsewhere the Python loop runs, with the same answers.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from aeromanip.nmpc.backends.cache import CacheEntry
+from aeromanip.nmpc.backends.codegen import BUILD_TIMEOUT_S, cache_dir, library_of
+from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
+from aeromanip.nmpc.backends.sqp.dense_qp import SOLVERS
+
+log = logging.getLogger(__name__)
+
+SOURCE = Path(__file__).with_name("condensed_loop.c")
+CFLAGS = ("-O2", "-fPIC", "-shared")
+#: DAQP settings the loop passes on, in ``sqp_new``'s order (NaN: DAQP's default)
+DAQP_SETTINGS = (
+    "primal_tol", "dual_tol", "zero_tol", "pivot_tol", "progress_tol",
+    "cycle_tol", "iter_limit", "eps_prox", "eta_prox",
+)  # fmt: skip
+HESSIAN_CODES = {"auto": 0, "exact": 1, "gauss-newton": 2}
+#: the loop's return codes -> the Python loop's status words
+STATUS = {
+    1: "Solve_Succeeded",
+    2: "Solved_To_Acceptable_Level",
+    3: "Maximum_Iterations_Exceeded",
+    4: "Invalid_Number_Detected",
+    5: "QP failed",
+    6: "RTI step",
+    7: "model evaluation failed",
+}
+
+
+class SqpInfo(ctypes.Structure):
+    """``SqpInfo`` of ``condensed_loop.c``."""
+
+    _fields_ = [
+        ("f", ctypes.c_double),
+        ("iterations", ctypes.c_int),
+        ("qp_exitflag", ctypes.c_int),
+        ("qp_finite", ctypes.c_int),
+        ("qp_excess", ctypes.c_double),
+    ]
+
+
+def _casadi_dir() -> Path:
+    return Path(ca.__file__).parent
+
+
+def daqp_settings(qpsol_options: Mapping[str, Any]) -> np.ndarray | None:
+    """The DAQP settings of ``qpsol_options`` (the Python loop's defaults first) in
+    ``DAQP_SETTINGS`` order, or ``None`` if they hold anything the C loop cannot pass."""
+    if set(qpsol_options) - {"daqp"}:
+        return None
+    given = {**SOLVERS["daqp"]["daqp"], **dict(qpsol_options.get("daqp", {}))}
+    if set(given) - set(DAQP_SETTINGS):
+        return None
+    return np.array([float(given.get(k, np.nan)) for k in DAQP_SETTINGS])
+
+
+def loop_library() -> ctypes.CDLL | None:
+    """The compiled loop (built into the cache on first use), or ``None`` (no compiler, or
+    the build failed: one warning)."""
+    cc = shutil.which(os.environ.get("CC", "gcc"))
+    if cc is None or os.environ.get("AEROMANIP_CODEGEN", "1") == "0":
+        return None
+    entry = loop_entry(cc)
+    if not entry.valid():
+        with entry.locked():
+            if not entry.valid() and not _build(entry, cc):
+                return None
+    lib = ctypes.CDLL(str(entry.lib))
+    _declare(lib)
+    return lib
+
+
+def loop_entry(cc: str) -> CacheEntry:
+    """The cache entry of the loop built from ``SOURCE`` by the compiler ``cc``."""
+    h = hashlib.sha256(SOURCE.read_bytes())
+    h.update(" ".join((ca.__version__, Path(cc).name, *CFLAGS)).encode())
+    return CacheEntry(cache_dir() / f"aeromanip_condensed_loop-{h.hexdigest()[:20]}.so")
+
+
+def _build(entry: CacheEntry, cc: str) -> bool:
+    casadi = _casadi_dir()
+    with tempfile.TemporaryDirectory(prefix="build-loop-", dir=entry.lib.parent) as tmp:
+        out = Path(tmp) / entry.lib.name
+        cmd = [cc, *CFLAGS, str(SOURCE), f"-I{casadi / 'include'}", "-o", str(out),
+               str(casadi / "libdaqpstat.a"), "-lm"]  # fmt: skip
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
+        except (OSError, subprocess.TimeoutExpired) as e:
+            log.warning("codegen: building the compiled SQP loop failed (%s); Python loop", e)
+            return False
+        if proc.returncode != 0:
+            last = (proc.stderr.strip().splitlines() or ["?"])[-1]
+            log.warning("codegen: building the compiled SQP loop failed (%s); Python loop", last)
+            return False
+        entry.install(out)
+    return True
+
+
+def _declare(lib: ctypes.CDLL) -> None:
+    ptr = ctypes.c_void_p
+    lib.sqp_new.restype = ptr
+    lib.sqp_new.argtypes = [ptr, ptr, ptr, ptr, ctypes.c_int, ctypes.c_double, ptr, *[ptr] * 6]
+    lib.sqp_solve.restype = ctypes.c_int
+    lib.sqp_solve.argtypes = [ptr] * 11 + [ctypes.POINTER(SqpInfo)]
+    lib.sqp_free.restype = None
+    lib.sqp_free.argtypes = [ptr]
+
+
+class CompiledLoop:
+    """The compiled loop for one condensed model (module docstring).
+
+    Build with ``CompiledLoop.for_model``, which says ``None`` where the loop does not
+    apply.
+    """
+
+    def __init__(self, lib: ctypes.CDLL, model: CondensedQpModel, symbols: list[Any],
+                 daqp: np.ndarray) -> None:  # fmt: skip
+        self.lib, self._symbols = lib, symbols  # the model libraries stay loaded
+        self.model = model
+        qp = model.qp
+        dims = np.array([model.nU, model.nc, model.nr, model.nh, model.tr.p.numel()], np.intc)
+        sizes = np.array(qp._sizes, dtype=np.intc)
+        hier = np.ascontiguousarray(model.hier_elem_row, dtype=np.intc)
+        always = np.ascontiguousarray(qp.always, dtype=np.uint8)
+        fns = [ctypes.cast(s, ctypes.c_void_p) if s is not None else None for s in symbols]
+        self._handle = lib.sqp_new(
+            dims.ctypes.data, hier.ctypes.data, always.ctypes.data, sizes.ctypes.data,
+            len(sizes), float(qp.screen), daqp.ctypes.data, *fns,
+        )  # fmt: skip
+        if not self._handle:
+            raise MemoryError("the compiled SQP loop could not allocate its buffers")
+        self.info = SqpInfo()
+        self._info_ref = ctypes.byref(self.info)
+
+    @classmethod
+    def for_model(cls, model: Any, opts: Mapping[str, Any]) -> CompiledLoop | None:
+        """The compiled loop of ``model``, or ``None`` where it does not apply (another
+        model or QP solver, DAQP options it cannot pass, the model not compiled)."""
+        if not isinstance(model, CondensedQpModel) or model.qp.solver != "daqp":
+            return None
+        daqp = daqp_settings(opts["qpsol_options"])
+        if daqp is None or not opts["codegen"]:
+            return None
+        symbols = []
+        for f in model.sources[:2] + (model.sources[4:5] or [None]):
+            if f is None:
+                symbols += [None, None]
+                continue
+            path = library_of(f)
+            if path is None:
+                return None
+            so = ctypes.CDLL(str(path))
+            symbols += [getattr(so, f.name()), getattr(so, f.name() + "_work")]
+        lib = loop_library()
+        return None if lib is None else cls(lib, model, symbols, daqp)
+
+    def __del__(self) -> None:
+        handle = getattr(self, "_handle", None)
+        if handle:
+            self.lib.sqp_free(handle)
+            self._handle = None
+
+    def solve(self, opts: np.ndarray, p: np.ndarray, v: np.ndarray, lam_c: np.ndarray,
+              lam_v: np.ndarray) -> str:  # fmt: skip
+        """One solve from ``v`` (updated in place, as are the multipliers ``lam_c``,
+        ``lam_v`` and the QP's memory of active rows); returns the status word (the
+        figures are in ``self.info``)."""
+        m, qp = self.model, self.model.qp
+        code = self.lib.sqp_solve(
+            self._handle, opts.ctypes.data, p.ctypes.data, m.lbc.ctypes.data,
+            m.ubc.ctypes.data, m.lbU.ctypes.data, m.ubU.ctypes.data, v.ctypes.data,
+            lam_c.ctypes.data, lam_v.ctypes.data, qp.lam_a.ctypes.data, self._info_ref,
+        )  # fmt: skip
+        return STATUS.get(code, f"unknown status {code}")

@@ -1,0 +1,124 @@
+"""The SQP loop in compiled C (``compiled_loop``) against the Python loop and LAPACK.
+
+Truth: the Python loop (``SqpBackend._python_sqp``, itself tested against IPOPT) on
+the same problems, step by step in closed loop; NumPy's LAPACK ``eigh`` for the C
+eigensolver that convexifies indefinite Hessians.
+"""
+
+import ctypes
+import logging
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from aeromanip.bench.controller_speed import _stepper, bench_scenario
+from aeromanip.errors import ConfigError
+from aeromanip.nmpc.backends.cache import CacheEntry
+from aeromanip.nmpc.backends.sqp import compiled_loop
+from aeromanip.nmpc.backends.sqp.solver import SqpBackend
+
+pytestmark = pytest.mark.codegen
+
+EQUAL = 1e-8  # [rad/s, m/s] the commands of the two loops
+STEPS = 16  # closed-loop steps per case (8 s of the flight)
+
+
+@pytest.fixture(autouse=True)
+def _codegen_on(monkeypatch):
+    monkeypatch.setenv("AEROMANIP_CODEGEN", "1")
+
+
+def closed_loop(kind, strategy, backend, compiled):
+    """The commands and statuses of ``STEPS`` steps of the ideal loop."""
+    sc = bench_scenario(kind, STEPS * 0.5)
+    ctrl, step = _stepper(sc, strategy, backend, {"compiled_loop": compiled})
+    loops = [getattr(ls.backend, "loop", None) for ls in ctrl.strategy.solvers]
+    assert all((lp is not None) == compiled for lp in loops)
+    x, us, oks, its = sc.x0.copy(), [], [], []
+    for k in range(sc.steps):
+        u, it, ok = step(x, k * sc.problem.dt)
+        us.append(u)
+        oks.append(ok)
+        its.append(it)
+        x = x + sc.problem.dt * u
+    return np.array(us), oks, its
+
+
+@pytest.mark.parametrize(
+    "kind, strategy, backend",
+    [
+        ("flight", "weighted", "sqp"),
+        ("flight", "weighted", "sqp-rti"),
+        ("fast", "weighted", "sqp"),  # velocity bounds bind: exact Hessians, corrections
+        ("flight", "hierarchical", "sqp"),
+        ("fast", "stagewise", "sqp"),  # the hierarchy's cost rows in the Hessian
+    ],
+)
+def test_the_compiled_loop_gives_the_python_loops_commands(kind, strategy, backend):
+    py_u, py_ok, py_it = closed_loop(kind, strategy, backend, compiled=False)
+    c_u, c_ok, c_it = closed_loop(kind, strategy, backend, compiled=True)
+    assert all(py_ok) and c_ok == py_ok
+    assert c_it == py_it  # the same iterations, step by step
+    np.testing.assert_allclose(c_u, py_u, rtol=0, atol=EQUAL)
+
+
+def test_the_eigensolver_agrees_with_lapack():
+    lib = compiled_loop.loop_library()
+    assert lib is not None
+    eig = lib.sqp_eigen_symmetric
+    eig.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p,
+                    ctypes.c_void_p]  # fmt: skip
+    rng = np.random.default_rng(7)
+    for n in (1, 2, 7, 70):
+        M = rng.standard_normal((n, n))
+        S = np.asfortranarray(M + M.T)
+        S[0, 0] -= 50.0  # indefinite, with a spread of magnitudes
+        lam, V, e = np.zeros(n), np.zeros((n, n), order="F"), np.zeros(n)
+        eig(S.ctypes.data, n, lam.ctypes.data, V.ctypes.data, e.ctypes.data)
+        scale = np.abs(S).max()
+        np.testing.assert_allclose(np.sort(lam), np.linalg.eigh(S)[0], atol=1e-12 * scale)
+        np.testing.assert_allclose((V * lam) @ V.T, S, atol=1e-12 * scale)
+        np.testing.assert_allclose(V.T @ V, np.eye(n), atol=1e-12)
+
+
+def test_a_damaged_loop_library_is_rebuilt(monkeypatch, tmp_path):
+    monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
+    assert compiled_loop.loop_library() is not None
+    path = compiled_loop.loop_entry(shutil.which("gcc")).lib
+    cut = path.with_suffix(".cut")
+    cut.write_bytes(path.read_bytes()[:100])
+    os.replace(cut, path)  # truncated (a new file: the loaded one stays mapped)
+    assert not CacheEntry(path).valid()
+    again = compiled_loop.loop_library()
+    assert again is not None and CacheEntry(path).valid()
+
+
+def test_without_a_compiler_the_python_loop_runs(monkeypatch, caplog):
+    monkeypatch.setenv("CC", "/nonexistent/cc")
+    assert compiled_loop.loop_library() is None
+
+
+def test_where_the_loop_does_not_apply_the_python_loop_runs():
+    sc = bench_scenario("flight", 1.0)
+    for options in ({"qpsol": "qpoases"}, {"qpsol_options": {"print_time": False}},
+                    {"compiled_loop": False}):  # fmt: skip
+        ctrl, _ = _stepper(sc, "weighted", "sqp", options)
+        assert ctrl.strategy.solvers[0].backend.loop is None, options
+
+
+def test_a_bad_compiled_loop_option_is_one_line():
+    with pytest.raises(
+        ConfigError, match=r"^solver_options.compiled_loop: 'yes' is not true or false$"
+    ):
+        SqpBackend.checked_options({"compiled_loop": "yes"})
+
+
+def test_a_build_failure_is_one_warning(monkeypatch, tmp_path, caplog):
+    monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
+    monkeypatch.setattr(compiled_loop, "SOURCE", tmp_path / "broken.c")
+    (tmp_path / "broken.c").write_text("this is not C\n")
+    with caplog.at_level(logging.WARNING):
+        assert compiled_loop.loop_library() is None
+    assert "building the compiled SQP loop failed" in caplog.text
