@@ -44,6 +44,7 @@ import numpy as np
 
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends import Backend, NlpResult, SolveRequest, make_backend
+from aeromanip.nmpc.backends.codegen import Buffered
 from aeromanip.nmpc.problem import Problem, TaskEntry
 from aeromanip.nmpc.transcription import Transcription
 from aeromanip.registry import Registry
@@ -105,7 +106,7 @@ class LevelSolver:
     tr: Transcription
     backend: Backend
     warm: NlpResult | None = None
-    g_fun: ca.Function | None = None  # the constraints, for residual bounds
+    g_fun: Buffered | None = None  # the constraints, for residual bounds
 
 
 def _solve_level(
@@ -282,9 +283,9 @@ class Hierarchical(Strategy):
 
     def _rows_at(self, st: LevelSolver, w: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Level ``st``'s constraint rows evaluated at ``w``."""
-        if st.g_fun is None:
-            st.g_fun = ca.Function("g", [st.tr.w, st.tr.p], [st.tr.g])
-        return np.asarray(st.g_fun(w, p)).ravel()
+        if st.g_fun is None:  # evaluated on buffers: no conversions per call
+            st.g_fun = Buffered(ca.Function("g", [st.tr.w, st.tr.p], [ca.densify(st.tr.g)]))
+        return st.g_fun(w, p)[0].copy()
 
     def _residual_box(
         self, st: LevelSolver, j: int, w_j: np.ndarray, p: np.ndarray, c_star: np.ndarray
