@@ -201,8 +201,6 @@ class SqpBackend(Backend):
             self.model: QpModel = SparseQpModel(transcription, self.opts)
         else:
             self.model = CondensedQpModel(transcription, {**self.opts, "qpsol": self.qpsol})
-        if self.opts["blas_threads"] is not None:
-            limit_blas_threads(int(self.opts["blas_threads"]))
         self.loop = (
             CompiledLoop.for_model(self.model, self.opts) if self.opts["compiled_loop"] else None
         )
@@ -212,6 +210,8 @@ class SqpBackend(Backend):
             + [HESSIAN_CODES[self.opts["hessian"]], self.opts["regularization"], 0.0],
             dtype=float,
         )  # fmt: skip
+        if self.opts["blas_threads"] is not None:  # every OpenBLAS loaded by now
+            limit_blas_threads(int(self.opts["blas_threads"]))
         self._ipopt: Backend | None = None  # the seed, built on first use
         self._promise: float | None = None  # the last answer's cost
         self.seeds = 0  # IPOPT seeds so far
