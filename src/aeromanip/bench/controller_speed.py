@@ -16,7 +16,8 @@ of their applied commands from it.
   ``stagewise``: the same hierarchy in the paper's literal, relaxed form (stage costs
   bounded by the optimum plus a tolerance);
   ``constrained``: weighted, with a reference 25x faster so that velocity bounds bind;
-  ``rti``: weighted, one SQP iteration per step. Each with the ``sqp`` backend and, as
+  ``rti``: weighted, one SQP iteration per step; ``*-python-loop``: the SQP's loop in
+  Python instead of compiled C (``compiled_loop``). Each with the ``sqp`` backend and, as
   the reference answer, with IPOPT warm-started and converged tightly (``-ipopt``,
   ``tol = 1e-10``: at its default tolerance IPOPT's own answer moves by ~3e-4 rad/s).
 """
@@ -41,6 +42,7 @@ from aeromanip.nmpc.strategies import Weighted
 from aeromanip.nmpc.transcription import Transcription
 
 FAST = 25.0  # reference speed-up of the constrained variant: velocity bounds bind
+PYTHON_LOOP = {"compiled_loop": False}  # the SQP's loop in Python
 
 
 # name: (scenario kind, strategy ("stagewise": hierarchical, mode "stagewise"), backend,
@@ -56,6 +58,10 @@ VARIANTS: dict[str, tuple[str, str, str, dict | None, str | None]] = {
     "stagewise": ("flight", "stagewise", "sqp", None, "stagewise-ipopt"),
     "constrained-ipopt": ("fast", "weighted", "ipopt", REF_OPTIONS, None),
     "constrained": ("fast", "weighted", "sqp", None, "constrained-ipopt"),
+    # the SQP's loop in Python (where it is compiled by default): the same answers
+    "weighted-python-loop": ("flight", "weighted", "sqp", PYTHON_LOOP, "weighted"),
+    "rti-python-loop": ("flight", "weighted", "sqp-rti", PYTHON_LOOP, "rti"),
+    "hierarchical-python-loop": ("flight", "hierarchical", "sqp", PYTHON_LOOP, "hierarchical"),
 }
 
 

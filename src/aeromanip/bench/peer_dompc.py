@@ -50,9 +50,9 @@ EQUIV_RTOL = 1e-9  # the two objectives at one trajectory: largest relative diff
 TASKS = ("tracking", "cog", "posture", "control_rate")  # the terms expressed here
 # row: (strategy, backend, target: do-mpc's median over the row's at least this)
 ROWS: dict[str, tuple[str, str, float]] = {
-    "weighted": ("weighted", "sqp", 20.0),
-    "hierarchical": ("hierarchical", "sqp", 10.0),
-    "rti": ("weighted", "sqp-rti", 50.0),
+    "weighted": ("weighted", "sqp", 25.0),
+    "hierarchical": ("hierarchical", "sqp", 12.0),
+    "rti": ("weighted", "sqp-rti", 60.0),
 }
 
 
