@@ -18,6 +18,7 @@ from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends.cache import CacheEntry
 from aeromanip.nmpc.backends.sqp import compiled_loop
 from aeromanip.nmpc.backends.sqp.solver import SqpBackend
+from aeromanip.nmpc.controller import Controller
 
 pytestmark = pytest.mark.codegen
 
@@ -123,3 +124,25 @@ def test_a_build_failure_is_one_warning(monkeypatch, tmp_path, caplog):
     with caplog.at_level(logging.WARNING):
         assert compiled_loop.loop_library() is None
     assert "building the compiled SQP loop failed" in caplog.text
+
+
+def test_a_failing_solve_ends_as_in_the_python_loop():
+    """DAQP held to 2 iterations: the SQP runs out of iterations; both loops report it
+    alike and the controller falls back alike."""
+    outcomes = {}
+    for compiled in (False, True):
+        sc = bench_scenario("fast", 2.0)
+        qp = {"daqp": {"iter_limit": 2}}
+        opts = {"compiled_loop": compiled, "seed": "none", "qpsol_options": qp}
+        ctrl = Controller(sc.problem, "weighted", "sqp", opts)
+        assert (ctrl.strategy.solvers[0].backend.loop is not None) == compiled
+        x, rows = sc.x0.copy(), []
+        for k in range(sc.steps):
+            cmd = ctrl.step(x, k * sc.problem.dt)
+            rows.append((cmd.status, cmd.message, cmd.u))
+            x = x + sc.problem.dt * cmd.u
+        outcomes[compiled] = rows
+    assert {r[0] for r in outcomes[True]} == {"stopped"}
+    for py, c in zip(outcomes[False], outcomes[True], strict=True):
+        assert c[:2] == py[:2] == ("stopped", "Maximum_Iterations_Exceeded")
+        np.testing.assert_array_equal(c[2], py[2])
