@@ -119,10 +119,10 @@ def test_a_bad_compiled_loop_option_is_one_line():
 
 def test_a_build_failure_is_one_warning(monkeypatch, tmp_path, caplog):
     monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
-    monkeypatch.setattr(compiled_loop, "SOURCE", tmp_path / "broken.c")
-    (tmp_path / "broken.c").write_text("this is not C\n")
+    for name in (*compiled_loop.SOURCES, *compiled_loop.HEADERS):
+        (tmp_path / name).write_text("this is not C\n")
     with caplog.at_level(logging.WARNING):
-        assert compiled_loop.loop_library() is None
+        assert compiled_loop.loop_library(tmp_path) is None
     assert "building the compiled SQP loop failed" in caplog.text
 
 

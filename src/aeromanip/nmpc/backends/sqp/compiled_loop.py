@@ -1,13 +1,15 @@
 """The condensed model's SQP loop in compiled C: one call per solve.
 
-``condensed_loop.c`` runs the loop of ``solver.SqpBackend._sqp`` on the condensed model
-(``condensed_qp``) step for step: the model's generated Functions (already compiled
-by ``codegen``) are called through their C symbols, and the QP is solved by DAQP's C
-library, as CasADi's own DAQP interface calls it (the static library and headers come
-with CasADi's wheel). The loop itself is built once per machine into the compile cache
-(``<cache>/aeromanip_condensed_loop-<hash>.so``, checked like every entry). The loop is
-used where it applies (``solver_options.compiled_loop``, the condensed model with
-DAQP, the model compiled); elsewhere the Python loop runs, with the same answers.
+``condensed_loop.c`` (with ``condensed_qp.c`` and ``dense_linalg.c``) runs the loop of
+``solver.SqpBackend._sqp`` on the condensed model (``condensed_qp``) step for step: the
+model's generated Functions (already compiled by ``codegen``) are called through their C
+symbols, and the QP is solved by DAQP's C library, as CasADi's own DAQP interface calls
+it (the static library and headers come with CasADi's wheel). The loop itself is built
+once per machine into the compile cache (``<cache>/aeromanip_condensed_loop-<hash>.so``,
+checked like every entry); it takes the Python loop's constants from Python (each
+stated once). The loop is used where it applies (``solver_options.compiled_loop``, the
+condensed model with DAQP, the model compiled); elsewhere the Python loop runs, with the
+same answers.
 """
 
 from __future__ import annotations
@@ -29,11 +31,21 @@ import numpy as np
 from aeromanip.nmpc.backends.cache import CacheEntry
 from aeromanip.nmpc.backends.codegen import BUILD_TIMEOUT_S, cache_dir, library_of
 from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
-from aeromanip.nmpc.backends.sqp.dense_qp import SOLVERS
+from aeromanip.nmpc.backends.sqp.convexify import CONVEXIFY_DECADES, EIGEN_FLOOR
+from aeromanip.nmpc.backends.sqp.dense_qp import CROSS_TOL, SCREEN_ROUNDS, SOLVERS
 
 log = logging.getLogger(__name__)
 
-SOURCE = Path(__file__).with_name("condensed_loop.c")
+HERE = Path(__file__).parent
+#: the loop's C sources (compiled together) and headers
+SOURCES = ("condensed_loop.c", "condensed_qp.c", "dense_linalg.c")
+HEADERS = ("sqp_loop.h", "dense_linalg.h")
+#: the Python loop's constants the C loop takes (``Constants`` in sqp_loop.h), in order
+CONSTANTS = (
+    "screen_rounds", "cross_tol", "exact_from_iteration", "armijo", "backtrack", "min_step",
+    "damping_start", "damping_growth", "penalty_margin", "penalty_floor",
+    "convexify_decades", "eigen_floor",
+)  # fmt: skip
 CFLAGS = ("-O2", "-fPIC", "-shared")
 #: DAQP settings the loop passes on, in ``sqp_new``'s order (NaN: DAQP's default)
 DAQP_SETTINGS = (
@@ -80,34 +92,37 @@ def daqp_settings(qpsol_options: Mapping[str, Any]) -> np.ndarray | None:
     return np.array([float(given.get(k, np.nan)) for k in DAQP_SETTINGS])
 
 
-def loop_library() -> ctypes.CDLL | None:
-    """The compiled loop (built into the cache on first use), or ``None`` (no compiler, or
-    the build failed: one warning)."""
+def loop_library(source_dir: Path = HERE) -> ctypes.CDLL | None:
+    """The compiled loop (built into the cache on first use from the sources in
+    ``source_dir``), or ``None`` (no compiler, or the build failed: one warning)."""
     cc = shutil.which(os.environ.get("CC", "gcc"))
     if cc is None or os.environ.get("AEROMANIP_CODEGEN", "1") == "0":
         return None
-    entry = loop_entry(cc)
+    entry = loop_entry(cc, source_dir)
     if not entry.valid():
         with entry.locked():
-            if not entry.valid() and not _build(entry, cc):
+            if not entry.valid() and not _build(entry, cc, source_dir):
                 return None
     lib = ctypes.CDLL(str(entry.lib))
     _declare(lib)
     return lib
 
 
-def loop_entry(cc: str) -> CacheEntry:
-    """The cache entry of the loop built from ``SOURCE`` by the compiler ``cc``."""
-    h = hashlib.sha256(SOURCE.read_bytes())
+def loop_entry(cc: str, source_dir: Path = HERE) -> CacheEntry:
+    """The cache entry of the loop built from the sources in ``source_dir`` by ``cc``."""
+    h = hashlib.sha256()
+    for name in (*SOURCES, *HEADERS):
+        h.update((source_dir / name).read_bytes())
     h.update(" ".join((ca.__version__, Path(cc).name, *CFLAGS)).encode())
     return CacheEntry(cache_dir() / f"aeromanip_condensed_loop-{h.hexdigest()[:20]}.so")
 
 
-def _build(entry: CacheEntry, cc: str) -> bool:
+def _build(entry: CacheEntry, cc: str, source_dir: Path) -> bool:
     casadi = _casadi_dir()
     with tempfile.TemporaryDirectory(prefix="build-loop-", dir=entry.lib.parent) as tmp:
         out = Path(tmp) / entry.lib.name
-        cmd = [cc, *CFLAGS, str(SOURCE), f"-I{casadi / 'include'}", "-o", str(out),
+        sources = [str(source_dir / name) for name in SOURCES]
+        cmd = [cc, *CFLAGS, *sources, f"-I{casadi / 'include'}", "-o", str(out),
                str(casadi / "libdaqpstat.a"), "-lm"]  # fmt: skip
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
@@ -125,7 +140,8 @@ def _build(entry: CacheEntry, cc: str) -> bool:
 def _declare(lib: ctypes.CDLL) -> None:
     ptr = ctypes.c_void_p
     lib.sqp_new.restype = ptr
-    lib.sqp_new.argtypes = [ptr, ptr, ptr, ptr, ctypes.c_int, ctypes.c_double, ptr, *[ptr] * 6]
+    lib.sqp_new.argtypes = [ptr, ptr, ptr, ptr, ctypes.c_int, ctypes.c_double, ptr, ptr,
+                            *[ptr] * 6]  # fmt: skip
     lib.sqp_solve.restype = ctypes.c_int
     lib.sqp_solve.argtypes = [ptr] * 11 + [ctypes.POINTER(SqpInfo)]
     lib.sqp_free.restype = None
@@ -140,7 +156,7 @@ class CompiledLoop:
     """
 
     def __init__(self, lib: ctypes.CDLL, model: CondensedQpModel, symbols: list[Any],
-                 daqp: np.ndarray) -> None:  # fmt: skip
+                 daqp: np.ndarray, constants: np.ndarray) -> None:  # fmt: skip
         self.lib, self._symbols = lib, symbols  # the model libraries stay loaded
         self.model = model
         qp = model.qp
@@ -151,7 +167,7 @@ class CompiledLoop:
         fns = [ctypes.cast(s, ctypes.c_void_p) if s is not None else None for s in symbols]
         self._handle = lib.sqp_new(
             dims.ctypes.data, hier.ctypes.data, always.ctypes.data, sizes.ctypes.data,
-            len(sizes), float(qp.screen), daqp.ctypes.data, *fns,
+            len(sizes), float(qp.screen), daqp.ctypes.data, constants.ctypes.data, *fns,
         )  # fmt: skip
         if not self._handle:
             raise MemoryError("the compiled SQP loop could not allocate its buffers")
@@ -159,9 +175,12 @@ class CompiledLoop:
         self._info_ref = ctypes.byref(self.info)
 
     @classmethod
-    def for_model(cls, model: Any, opts: Mapping[str, Any]) -> CompiledLoop | None:
+    def for_model(
+        cls, model: Any, opts: Mapping[str, Any], loop_constants: Mapping[str, float]
+    ) -> CompiledLoop | None:
         """The compiled loop of ``model``, or ``None`` where it does not apply (another
-        model or QP solver, DAQP options it cannot pass, the model not compiled)."""
+        model or QP solver, DAQP options it cannot pass, the model not compiled).
+        ``loop_constants``: the SQP loop's own constants (``CONSTANTS`` names them)."""
         if not isinstance(model, CondensedQpModel) or model.qp.solver != "daqp":
             return None
         daqp = daqp_settings(opts["qpsol_options"])
@@ -178,7 +197,10 @@ class CompiledLoop:
             so = ctypes.CDLL(str(path))
             symbols += [getattr(so, f.name()), getattr(so, f.name() + "_work")]
         lib = loop_library()
-        return None if lib is None else cls(lib, model, symbols, daqp)
+        given = {**loop_constants, "screen_rounds": SCREEN_ROUNDS, "cross_tol": CROSS_TOL,
+                 "convexify_decades": CONVEXIFY_DECADES, "eigen_floor": EIGEN_FLOOR}  # fmt: skip
+        constants = np.array([float(given[k]) for k in CONSTANTS])
+        return None if lib is None else cls(lib, model, symbols, daqp, constants)
 
     def __del__(self) -> None:
         handle = getattr(self, "_handle", None)

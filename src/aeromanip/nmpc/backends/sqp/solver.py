@@ -175,6 +175,12 @@ DAMPING_GROWTH = 10.0
 PENALTY_MARGIN = 1.1  # the merit's penalty exceeds the largest multiplier by this factor
 PENALTY_FLOOR = 1e-8  # and by at least this
 SOLVED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")  # the loop's successful ends
+#: the constants above, for the compiled loop
+LOOP_CONSTANTS = {
+    "exact_from_iteration": EXACT_FROM_ITERATION, "armijo": ARMIJO, "backtrack": BACKTRACK,
+    "min_step": MIN_STEP, "damping_start": DAMPING_START, "damping_growth": DAMPING_GROWTH,
+    "penalty_margin": PENALTY_MARGIN, "penalty_floor": PENALTY_FLOOR,
+}  # fmt: skip
 
 
 @BACKENDS.register("sqp")
@@ -202,7 +208,9 @@ class SqpBackend(Backend):
         else:
             self.model = CondensedQpModel(transcription, {**self.opts, "qpsol": self.qpsol})
         self.loop = (
-            CompiledLoop.for_model(self.model, self.opts) if self.opts["compiled_loop"] else None
+            CompiledLoop.for_model(self.model, self.opts, LOOP_CONSTANTS)
+            if self.opts["compiled_loop"]
+            else None
         )
         self._loop_opts = np.array(
             [self.opts[k] for k in ("max_iter", "tol", "acceptable_tol", "constr_viol_tol",

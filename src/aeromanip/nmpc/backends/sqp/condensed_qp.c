@@ -1,0 +1,213 @@
+/*
+ * The compiled SQP loop's QP step on the condensed model: the Hessian (Gauss-Newton, or
+ * the exact one convexified: condensed_qp.py, convexify.py) and the dense QP solved by
+ * DAQP on the rows that may bind (dense_qp.py).
+ */
+#include <math.h>
+#include <string.h>
+
+#include "sqp_loop.h"
+
+/* -- the dense QP on the rows that may bind (dense_qp.py) --------------------------- */
+
+
+/* the QP with the rows `rows` (r of them) only: DAQP as CasADi's interface calls it */
+static QpOutcome solve_rows(Sqp* s, const double* H, const double* g, const double* A,
+                            const double* lba, const double* uba, const double* lbx,
+                            const double* ubx, const int* rows, int r, double* d,
+                            double* lam_r, double* lam_x) {
+  int n = s->nU, m = n + r;
+  QpOutcome out = {0, 0, 1, 0.0};
+  memcpy(s->dH, H, sizeof(double) * (size_t)n * n);
+  for (int i = 0; i < r; ++i)
+    for (int j = 0; j < n; ++j) s->dA[(size_t)i * n + j] = A[rows[i] + (size_t)j * s->nc];
+  for (int j = 0; j < n; ++j) {
+    s->dlo[j] = lbx[j];
+    s->dup[j] = ubx[j];
+    s->sense[j] = lbx[j] == ubx[j] ? 5 : 0;
+  }
+  for (int i = 0; i < r; ++i) {
+    s->dlo[n + i] = lba[rows[i]];
+    s->dup[n + i] = uba[rows[i]];
+    s->sense[n + i] = lba[rows[i]] == uba[rows[i]] ? 5 : 0;
+  }
+  DAQPProblem qp = {n, m, n, s->dH, (c_float*)g, s->dA, s->dup, s->dlo, s->sense};
+  DAQPWorkspace work;
+  DAQPResult res;
+  memset(&work, 0, sizeof work);
+  memset(&res, 0, sizeof res);
+  work.settings = &s->settings;
+  res.x = d;
+  res.lam = s->dlam;
+  int flag = setup_daqp(&qp, &work, &res.setup_time);
+  if (flag < 0) {
+    for (int j = 0; j < n; ++j) d[j] = NAN;
+    out.exitflag = flag;
+  } else {
+    daqp_solve(&res, &work);
+    out.exitflag = res.exitflag;
+  }
+  work.settings = 0;
+  free_daqp_workspace(&work);
+  free_daqp_ldp(&work);
+  memcpy(lam_x, s->dlam, sizeof(double) * n);
+  memcpy(lam_r, s->dlam + n, sizeof(double) * r);
+  /* a finite, feasible solution means success (as the Python path decides) */
+  double dmax = 0.0;
+  for (int j = 0; j < n; ++j) {
+    if (!isfinite(d[j])) out.finite = 0;
+    if (fabs(d[j]) > dmax) dmax = fabs(d[j]);
+  }
+  double tol = s->k.cross_tol * (1.0 + dmax), excess = 0.0;
+  for (int i = 0; i < r; ++i) {
+    double ad = 0.0;
+    for (int j = 0; j < n; ++j) ad += s->dA[(size_t)i * n + j] * d[j];
+    if (lba[rows[i]] - ad > excess) excess = lba[rows[i]] - ad;
+    if (ad - uba[rows[i]] > excess) excess = ad - uba[rows[i]];
+  }
+  for (int j = 0; j < n; ++j) {
+    if (lbx[j] - d[j] > excess) excess = lbx[j] - d[j];
+    if (d[j] - ubx[j] > excess) excess = d[j] - ubx[j];
+  }
+  out.excess = excess;
+  out.ok = out.finite && excess <= tol;
+  return out;
+}
+
+/* the QP, first on the rows near their bounds, active at the last solve (`memory`) or
+   always wanted; rows the answer crosses are added (dense_qp.DenseQp._active_set) */
+QpOutcome qp_solve(Sqp* s, const double* H, const double* g, const double* A,
+                          const double* lba, const double* uba, const double* lbx,
+                          const double* ubx, double* memory, double* d, double* lam_a,
+                          double* lam_x) {
+  int nc = s->nc, n = s->nU;
+  QpOutcome out;
+  for (int i = 0; i < nc; ++i) {
+    double slack = -lba[i] < uba[i] ? -lba[i] : uba[i];
+    s->near[i] = s->always[i] || memory[i] != 0.0 || slack < s->screen;
+  }
+  int full = 1;
+  for (int round = 0; round < s->k.screen_rounds; ++round) {
+    int r = 0;
+    for (int i = 0; i < nc; ++i)
+      if (s->near[i]) s->rows[r++] = i;
+    int k = nc;
+    for (int t = 0; t < s->n_sizes; ++t)
+      if (s->sizes[t] >= r) {
+        k = s->sizes[t];
+        break;
+      }
+    if (k == nc) break;
+    out = solve_rows(s, H, g, A, lba, uba, lbx, ubx, s->rows, r, d, s->rlam, lam_x);
+    if (!out.ok) {
+      memset(lam_a, 0, sizeof(double) * nc);
+      return out;
+    }
+    double dmax = 0.0;
+    for (int j = 0; j < n; ++j)
+      if (fabs(d[j]) > dmax) dmax = fabs(d[j]);
+    double tol = s->k.cross_tol * (1.0 + dmax);
+    la_matvec(A, nc, n, d, s->Ad);
+    int crossed = 0;
+    for (int i = 0; i < nc; ++i)
+      if (!s->near[i] && (s->Ad[i] < lba[i] - tol || s->Ad[i] > uba[i] + tol)) {
+        s->near[i] = 2;  /* added after this round */
+        crossed = 1;
+      }
+    if (!crossed) {
+      memset(lam_a, 0, sizeof(double) * nc);
+      for (int i = 0; i < r; ++i) lam_a[s->rows[i]] = s->rlam[i];
+      full = 0;
+      break;
+    }
+  }
+  if (full) {
+    for (int i = 0; i < nc; ++i) s->rows[i] = i;
+    out = solve_rows(s, H, g, A, lba, uba, lbx, ubx, s->rows, nc, d, lam_a, lam_x);
+    if (!out.ok) memset(lam_a, 0, sizeof(double) * nc);
+  }
+  if (out.ok) memcpy(memory, lam_a, sizeof(double) * nc);
+  return out;
+}
+
+/* -- Hessians (condensed_qp.py: _hessian; convexify.py) ----------------------------- */
+
+/* H positive definite as it is, or H + rho C'C for the active rows C (and the variables
+   at a bound), or H with its eigenvalues reflected */
+static void convexify(Sqp* s, double* H, const double* lam_c, const double* lam_u) {
+  int n = s->nU, nc = s->nc;
+  if (la_positive_definite(H, n, s->L)) return;
+  int nC = 0, nfixed = 0;
+  for (int i = 0; i < nc; ++i) nC += lam_c[i] != 0.0;
+  for (int j = 0; j < n; ++j) nfixed += lam_u[j] != 0.0;
+  if (nC || nfixed) {
+    double scale = 0.0, norms = 0.0;
+    for (int j = 0; j < n; ++j)
+      if (fabs(H[j + (size_t)j * n]) > scale) scale = fabs(H[j + (size_t)j * n]);
+    if (scale < 1e-8) scale = 1e-8;
+    int r = 0;
+    for (int i = 0; i < nc; ++i) {
+      if (lam_c[i] == 0.0) continue;
+      for (int j = 0; j < n; ++j) s->C[r + (size_t)j * nC] = s->A[i + (size_t)j * nc];
+      ++r;
+    }
+    for (int i = 0; i < nC; ++i) {
+      double rn = 0.0;
+      for (int j = 0; j < n; ++j) rn += s->C[i + (size_t)j * nC] * s->C[i + (size_t)j * nC];
+      norms += rn;
+    }
+    norms = (norms + nfixed) / (double)(nC + nfixed);
+    double base = scale / (norms > 1e-12 ? norms : 1e-12);
+    la_gram(s->C, nC, n, 1.0, s->V, 0, s->range); /* C'C, then the fixed variables' diagonal */
+    for (int j = 0; j < n; ++j)
+      if (lam_u[j] != 0.0) s->V[j + (size_t)j * n] += 1.0;
+    for (int t = 0; t < s->k.convexify_decades; ++t) {
+      double rho = base * pow(10.0, t);
+      for (size_t i = 0; i < (size_t)n * n; ++i) s->Hc[i] = H[i] + rho * s->V[i];
+      if (la_positive_definite(s->Hc, n, s->L)) {
+        memcpy(H, s->Hc, sizeof(double) * (size_t)n * n);
+        return;
+      }
+    }
+  }
+  double* lam = s->tmp;
+  sqp_eigen_symmetric(H, n, lam, s->V, s->Hc);
+  double top = 0.0;
+  for (int i = 0; i < n; ++i)
+    if (fabs(lam[i]) > top) top = fabs(lam[i]);
+  double floor = s->k.eigen_floor * (top > 1e-3 ? top : 1e-3);
+  for (int i = 0; i < n; ++i) lam[i] = fabs(lam[i]) > floor ? fabs(lam[i]) : floor;
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i) {
+      double v = 0.0;
+      for (int k = 0; k < n; ++k) v += s->V[i + (size_t)k * n] * lam[k] * s->V[j + (size_t)k * n];
+      H[i + (size_t)j * n] = v;
+    }
+}
+
+/* the QP's Hessian at the iterate: Gauss-Newton (plus the hierarchy rows' curvature) or
+   the exact one convexified; regularised and damped on the diagonal */
+int hessian(Sqp* s, const double* U, const double* p, const double* lam_c,
+                   const double* lam_u, int exact, double regularization, double damping) {
+  int n = s->nU;
+  if (exact && s->has_hess) {
+    if (fn_call(&s->hess, U, p, lam_c, s->H, 0, 0, 0, 0)) return 1;
+    convexify(s, s->H, lam_c, lam_u);
+  } else {
+    la_gram(s->J, s->nr, n, 2.0, s->H, 0, s->range);
+    if (s->nh) {
+      for (int j = 0; j < n; ++j)
+        for (int i = 0; i < s->nh; ++i) {
+          double l = lam_c[s->hier_row[i]];
+          s->C[i + (size_t)j * s->nh] = s->Jh[i + (size_t)j * s->nh] * sqrt(l > 0 ? l : 0.0);
+        }
+      la_gram(s->C, s->nh, n, 2.0, s->H, 1, s->range);
+    }
+  }
+  double top = -INFINITY;
+  for (int j = 0; j < n; ++j)
+    if (s->H[j + (size_t)j * n] > top) top = s->H[j + (size_t)j * n];
+  for (int j = 0; j < n; ++j) s->H[j + (size_t)j * n] += regularization + damping * top;
+  return 0;
+}
+

@@ -1,0 +1,261 @@
+/*
+ * Small dense linear algebra and optimality measures for the compiled SQP loop: the
+ * products it needs, a Cholesky test, a symmetric eigensolver, and optimality.py's
+ * measures. Matrices are column-major.
+ */
+#include "dense_linalg.h"
+
+#include <math.h>
+#include <string.h>
+
+double la_dot(const double* a, const double* b, int n) {
+  double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
+  int i = 0;
+  for (; i + 4 <= n; i += 4) {
+    s0 += a[i] * b[i];
+    s1 += a[i + 1] * b[i + 1];
+    s2 += a[i + 2] * b[i + 2];
+    s3 += a[i + 3] * b[i + 3];
+  }
+  for (; i < n; ++i) s0 += a[i] * b[i];
+  return (s0 + s1) + (s2 + s3);
+}
+
+/* H = scale * M' M (M: m x n column-major; `range`: 2n ints of scratch): each column's
+   products only over the rows where both columns have nonzeros (a condensed Jacobian is
+   block-triangular: a stage's residuals do not depend on later commands) */
+void la_gram(const double* M, int m, int n, double scale, double* H, int add, int* range) {
+  for (int j = 0; j < n; ++j) {
+    const double* col = M + (size_t)j * m;
+    int lo = 0, hi = m;
+    while (lo < m && col[lo] == 0.0) ++lo;
+    while (hi > lo && col[hi - 1] == 0.0) --hi;
+    range[2 * j] = lo;
+    range[2 * j + 1] = hi;
+  }
+  for (int j = 0; j < n; ++j) {
+    for (int i = 0; i <= j; ++i) {
+      int lo = range[2 * i] > range[2 * j] ? range[2 * i] : range[2 * j];
+      int hi = range[2 * i + 1] < range[2 * j + 1] ? range[2 * i + 1] : range[2 * j + 1];
+      double v = hi > lo ? scale * la_dot(M + (size_t)i * m + lo, M + (size_t)j * m + lo, hi - lo)
+                         : 0.0;
+      if (add) {
+        H[i + (size_t)j * n] += v;
+        if (i != j) H[j + (size_t)i * n] += v;
+      } else {
+        H[i + (size_t)j * n] = v;
+        H[j + (size_t)i * n] = v;
+      }
+    }
+  }
+}
+
+/* y = M x (M: m x n) */
+void la_matvec(const double* M, int m, int n, const double* x, double* y) {
+  for (int i = 0; i < m; ++i) y[i] = 0.0;
+  for (int j = 0; j < n; ++j) {
+    double xj = x[j];
+    if (xj == 0.0) continue;
+    const double* col = M + (size_t)j * m;
+    for (int i = 0; i < m; ++i) y[i] += col[i] * xj;
+  }
+}
+
+/* y = M' x (M: m x n) */
+void la_matvec_t(const double* M, int m, int n, const double* x, double* y) {
+  for (int j = 0; j < n; ++j) y[j] = la_dot(M + (size_t)j * m, x, m);
+}
+
+/* Cholesky of a symmetric matrix (lower triangle read): positive definite? */
+int la_positive_definite(const double* H, int n, double* L) {
+  memcpy(L, H, sizeof(double) * (size_t)n * n);
+  for (int j = 0; j < n; ++j) {
+    double* Lj = L + (size_t)j * n;
+    double s = Lj[j];
+    for (int k = 0; k < j; ++k) s -= L[j + (size_t)k * n] * L[j + (size_t)k * n];
+    if (!(s > 0.0)) return 0;
+    s = sqrt(s);
+    Lj[j] = s;
+    for (int i = j + 1; i < n; ++i) {
+      double t = Lj[i];
+      for (int k = 0; k < j; ++k) t -= L[i + (size_t)k * n] * L[j + (size_t)k * n];
+      Lj[i] = t / s;
+    }
+  }
+  return 1;
+}
+
+/* eigenvalues (into lam, ascending) and eigenvectors (columns of V) of a symmetric
+   matrix S (n x n, read): Householder tridiagonalisation and the implicit QL method
+   (EISPACK's tred2 and tql2, as in the public-domain JAMA); e: n scratch */
+/* eigenvalues (into lam, ascending) and eigenvectors (columns of V) of a symmetric
+   matrix S (n x n, read): Householder tridiagonalisation and the implicit QL method
+   (EISPACK's tred2 and tql2, as in the public-domain JAMA); e: n scratch */
+#define AT(i, j) V[(i) + (size_t)(j) * n]
+
+/* Householder reduction of V (symmetric, overwritten by the transformation) to
+   tridiagonal form: diagonal in d, subdiagonal in e (EISPACK's tred2) */
+static void tred2(double* V, int n, double* d, double* e) {
+  double* lam = d;
+  for (int j = 0; j < n; ++j) lam[j] = AT(n - 1, j);
+  for (int i = n - 1; i > 0; --i) { /* tred2 */
+    double scale = 0.0, h = 0.0;
+    for (int k = 0; k < i; ++k) scale += fabs(lam[k]);
+    if (scale == 0.0) {
+      e[i] = lam[i - 1];
+      for (int j = 0; j < i; ++j) {
+        lam[j] = AT(i - 1, j);
+        AT(i, j) = 0.0;
+        AT(j, i) = 0.0;
+      }
+    } else {
+      for (int k = 0; k < i; ++k) {
+        lam[k] /= scale;
+        h += lam[k] * lam[k];
+      }
+      double f = lam[i - 1], g = sqrt(h);
+      if (f > 0) g = -g;
+      e[i] = scale * g;
+      h -= f * g;
+      lam[i - 1] = f - g;
+      for (int j = 0; j < i; ++j) e[j] = 0.0;
+      for (int j = 0; j < i; ++j) {
+        f = lam[j];
+        AT(j, i) = f;
+        g = e[j] + AT(j, j) * f;
+        for (int k = j + 1; k <= i - 1; ++k) {
+          g += AT(k, j) * lam[k];
+          e[k] += AT(k, j) * f;
+        }
+        e[j] = g;
+      }
+      f = 0.0;
+      for (int j = 0; j < i; ++j) {
+        e[j] /= h;
+        f += e[j] * lam[j];
+      }
+      double hh = f / (h + h);
+      for (int j = 0; j < i; ++j) e[j] -= hh * lam[j];
+      for (int j = 0; j < i; ++j) {
+        f = lam[j];
+        g = e[j];
+        for (int k = j; k <= i - 1; ++k) AT(k, j) -= (f * e[k] + g * lam[k]);
+        lam[j] = AT(i - 1, j);
+        AT(i, j) = 0.0;
+      }
+    }
+    lam[i] = h;
+  }
+  for (int i = 0; i < n - 1; ++i) { /* accumulate the transformations */
+    AT(n - 1, i) = AT(i, i);
+    AT(i, i) = 1.0;
+    double h = lam[i + 1];
+    if (h != 0.0) {
+      for (int k = 0; k <= i; ++k) lam[k] = AT(k, i + 1) / h;
+      for (int j = 0; j <= i; ++j) {
+        double g = 0.0;
+        for (int k = 0; k <= i; ++k) g += AT(k, i + 1) * AT(k, j);
+        for (int k = 0; k <= i; ++k) AT(k, j) -= g * lam[k];
+      }
+    }
+    for (int k = 0; k <= i; ++k) AT(k, i + 1) = 0.0;
+  }
+  for (int j = 0; j < n; ++j) {
+    lam[j] = AT(n - 1, j);
+    AT(n - 1, j) = 0.0;
+  }
+  AT(n - 1, n - 1) = 1.0;
+}
+
+/* the eigenvalues d and vectors V of the tridiagonal matrix (d, e) that tred2 left,
+   by the implicit QL method (EISPACK's tql2) */
+static void tql2(double* V, int n, double* d, double* e) {
+  double* lam = d;
+  e[0] = 0.0;
+  for (int i = 1; i < n; ++i) e[i - 1] = e[i]; /* tql2 */
+  e[n - 1] = 0.0;
+  double f = 0.0, tst1 = 0.0, eps = 2.220446049250313e-16;
+  for (int l = 0; l < n; ++l) {
+    if (fabs(lam[l]) + fabs(e[l]) > tst1) tst1 = fabs(lam[l]) + fabs(e[l]);
+    int m = l;
+    while (m < n && fabs(e[m]) > eps * tst1) ++m;
+    if (m == n) m = n - 1;
+    if (m > l) {
+      for (int iter = 0; iter < 60; ++iter) {
+        double g = lam[l], p = (lam[l + 1] - g) / (2.0 * e[l]), r = hypot(p, 1.0);
+        if (p < 0) r = -r;
+        lam[l] = e[l] / (p + r);
+        lam[l + 1] = e[l] * (p + r);
+        double dl1 = lam[l + 1], h = g - lam[l];
+        for (int i = l + 2; i < n; ++i) lam[i] -= h;
+        f += h;
+        p = lam[m];
+        double c = 1.0, c2 = 1.0, c3 = 1.0, el1 = e[l + 1], s = 0.0, s2 = 0.0;
+        for (int i = m - 1; i >= l; --i) {
+          c3 = c2;
+          c2 = c;
+          s2 = s;
+          g = c * e[i];
+          h = c * p;
+          r = hypot(p, e[i]);
+          e[i + 1] = s * r;
+          s = e[i] / r;
+          c = p / r;
+          p = c * lam[i] - s * g;
+          lam[i + 1] = h + s * (c * g + s * lam[i]);
+          for (int k = 0; k < n; ++k) {
+            h = AT(k, i + 1);
+            AT(k, i + 1) = s * AT(k, i) + c * h;
+            AT(k, i) = c * AT(k, i) - s * h;
+          }
+        }
+        p = -s * s2 * c3 * el1 * e[l] / dl1;
+        e[l] = s * p;
+        lam[l] = c * p;
+        if (!(fabs(e[l]) > eps * tst1)) break;
+      }
+    }
+    lam[l] += f;
+    e[l] = 0.0;
+  }
+}
+#undef AT
+
+void sqp_eigen_symmetric(const double* S, int n, double* lam, double* V, double* e) {
+  memcpy(V, S, sizeof(double) * (size_t)n * n);
+  tred2(V, n, lam, e);
+  tql2(V, n, lam, e);
+}
+
+/* -- optimality measures (optimality.py) -------------------------------------------- */
+
+double la_violation(const double* g, const double* lb, const double* ub, int n) {
+  double v = 0.0;
+  for (int i = 0; i < n; ++i) {
+    if (lb[i] - g[i] > v) v = lb[i] - g[i];
+    if (g[i] - ub[i] > v) v = g[i] - ub[i];
+  }
+  return v;
+}
+
+double la_l1(const double* g, const double* lb, const double* ub, int n) {
+  double lo = 0.0, hi = 0.0;
+  for (int i = 0; i < n; ++i) {
+    if (lb[i] - g[i] > 0) lo += lb[i] - g[i];
+    if (g[i] - ub[i] > 0) hi += g[i] - ub[i];
+  }
+  return lo + hi;
+}
+
+double la_complementarity(const double* g, const double* lb, const double* ub,
+                              const double* lam, int n) {
+  double c = 0.0;
+  for (int i = 0; i < n; ++i) {
+    double dist = lam[i] > 0 ? ub[i] - g[i] : (lam[i] < 0 ? lb[i] - g[i] : 0.0);
+    double v = fabs(lam[i] * dist);
+    if (!isfinite(v)) return INFINITY;
+    if (v > c) c = v;
+  }
+  return c;
+}
+

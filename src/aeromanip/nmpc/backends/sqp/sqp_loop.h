@@ -1,0 +1,82 @@
+/*
+ * The compiled SQP loop's shared types (condensed_loop.c, condensed_qp.c).
+ */
+#ifndef AEROMANIP_SQP_LOOP_H
+#define AEROMANIP_SQP_LOOP_H
+
+#include <stddef.h>
+
+#include "daqp/api.h"
+#include "dense_linalg.h"
+
+typedef long long casadi_int;
+typedef int (*casadi_fn)(const double** arg, double** res, casadi_int* iw, double* w, int mem);
+typedef int (*casadi_work_fn)(casadi_int* sz_arg, casadi_int* sz_res, casadi_int* sz_iw,
+                              casadi_int* sz_w);
+
+/* the outcome of a solve (Python maps them to IPOPT-like status words) */
+enum { ST_SOLVED = 1, ST_ACCEPTABLE = 2, ST_MAX_ITER = 3, ST_INVALID = 4, ST_QP_FAILED = 5,
+       ST_RTI = 6, ST_MODEL_FAILED = 7 };
+enum { HESS_AUTO = 0, HESS_EXACT = 1, HESS_GN = 2 };
+
+#define MAX_SIZES 16
+
+typedef struct {
+  casadi_fn f;
+  const double** arg;
+  double** res;
+  casadi_int* iw;
+  double* w;
+} Fn;
+
+/* the Python loop's constants (solver.py, dense_qp.py, convexify.py), passed by sqp_new */
+typedef struct {
+  double screen_rounds, cross_tol, exact_from_iteration, armijo, backtrack, min_step;
+  double damping_start, damping_growth, penalty_margin, penalty_floor;
+  double convexify_decades, eigen_floor;
+} Constants;
+
+typedef struct {
+  int nU, nc, nr, nh, np, has_hess;
+  Constants k;
+  Fn data, merit, hess;
+  int* hier_row;          /* nh: the row (of nc) that bounds each hierarchy residual */
+  unsigned char* always;  /* nc: rows always given to the QP solver */
+  int sizes[MAX_SIZES], n_sizes;  /* row counts below which the screened QP is tried */
+  double screen;
+  DAQPSettings settings;
+  /* the model at the iterate and at a trial point */
+  double *R, *J, *c, *A, *Jh, *grad, *H, *trial_c;
+  /* QP data and answers */
+  double *qd, *qlam_a, *qlam_x, *lba, *uba, *lbx, *ubx, *Ad, *soc_c;
+  double *sd, *slam_a, *slam_x;  /* the corrected step */
+  /* DAQP's inputs (A row-major) and scratch */
+  double *dH, *dA, *dlo, *dup, *dlam, *rlam, *tmp, *L, *C, *V, *Hc;
+  int *sense, *rows, *range;
+  unsigned char* near;
+} Sqp;
+
+typedef struct {
+  double f;
+  int iterations;
+  int qp_exitflag;     /* DAQP's, of the QP that failed */
+  int qp_finite;       /* its answer finite? */
+  double qp_excess;    /* how far it crossed its bounds */
+} SqpInfo;
+
+
+
+typedef struct {
+  int ok, exitflag, finite;
+  double excess;
+} QpOutcome;
+
+int fn_call(Fn* fn, const double* a0, const double* a1, const double* a2, double* r0,
+            double* r1, double* r2, double* r3, double* r4);
+QpOutcome qp_solve(Sqp* s, const double* H, const double* g, const double* A,
+                   const double* lba, const double* uba, const double* lbx, const double* ubx,
+                   double* memory, double* d, double* lam_a, double* lam_x);
+int hessian(Sqp* s, const double* U, const double* p, const double* lam_c,
+            const double* lam_u, int exact, double regularization, double damping);
+
+#endif
