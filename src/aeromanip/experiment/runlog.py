@@ -229,11 +229,22 @@ class RunLog:
             )
         s.update(self._level_losses())
         s.update(self._clearance_use())
+        s.update(self._contact())
         if "iterations" in self.columns:
             s["iterations_mean"] = _nan_or(
                 self.columns["iterations"], lambda a: float(np.nanmean(a))
             )
         return s
+
+    def _contact(self) -> dict[str, Any]:
+        """With surfaces (a ``contact`` column): the share of rows in contact and the
+        largest normal force [N]; nothing otherwise."""
+        if "contact" not in self.columns or "f_n" not in self.columns or len(self) == 0:
+            return {}
+        return {
+            "contact_share": float(np.nanmean(self.columns["contact"])),
+            "f_n_max_n": float(np.nanmax(self.columns["f_n"])),
+        }
 
     def _level_losses(self) -> dict[str, Any]:
         """Per hierarchy level: how much of its optimal cost the lower levels took, per

@@ -85,6 +85,11 @@ class Simulator(ABC):
         kinematic model's (e.g. tilted platform in physics); ``None`` otherwise."""
         return None
 
+    def measured_wrench(self) -> np.ndarray | None:
+        """The end effector's force/torque sensor reading now ``[f, tau]`` [N, N m], world
+        frame, as the controller would receive it; ``None``: no sensor."""
+        return None
+
     def extras(self) -> dict[str, float]:
         """Extra logged quantities (e.g. ``roll``, ``pitch`` in physics); none by default."""
         return {}

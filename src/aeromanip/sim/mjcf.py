@@ -4,12 +4,14 @@ Layout (names are stable, the physics simulator relies on them)::
 
     worldbody
       ground (visual plane at z = 0, no contacts anywhere: contacts are disabled)
+      surface_1..                 with scenario surfaces only (``sim.contact``): rigid boxes
       <spec.base_link>            free joint "base", platform mass/inertia at the body origin,
         rotor_1..rotor_n          sites at spec.platform.arm_length in an X layout
         arm_mount_link            fixed at spec.mount_xyz/rpy (massless, welded)
           <joint i link_name>     pos/quat = joint origin, hinge = joint axis, link inertial
             ...
               <spec.ee_link>      site at ee_xyz/ee_rpy in the last link
+              ee_probe            with surfaces only: probe sphere + force/torque site
     actuators
       rotor_1..rotor_n            <motor site=... gear="0 0 1 0 0 +-K_M">, ctrl = thrust [N]
       servo_<joint>               <position kp kv>, ctrl = joint position [rad]
@@ -33,6 +35,7 @@ Constants (documented choices):
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
@@ -40,6 +43,7 @@ import numpy as np
 from aeromanip.errors import ConfigError
 from aeromanip.robot.spec import PLATFORM_DOFS, Inertial, RobotSpec
 from aeromanip.sim.base import GRAVITY
+from aeromanip.sim.contact import PROBE_RADIUS, Surface, probe_body, sensors, surface_geoms
 from aeromanip.sim.flight_controller import rotor_layout
 
 K_M = 0.016  # [m] rotor reaction torque per newton of thrust
@@ -158,12 +162,17 @@ def robot_to_mjcf(
     timestep: float = TIMESTEP,
     servo_hz: float = SERVO_HZ,
     servo_damping: float = SERVO_DAMPING,
+    surfaces: Sequence[Surface] = (),
+    probe_radius: float = PROBE_RADIUS,
 ) -> str:
     """MJCF text of the UAM ``spec`` with ``rotors`` thrust actuators (default: the
     platform's, flat or in coaxial pairs as it says) and one servo per joint.
 
     ``timestep`` [s] is the physics step; the base starts at the spec's fixed platform values
     (z = 1 m unless z is fixed) and a ``hover`` keyframe holds every rotor at ``m g / n``.
+    With ``surfaces`` (``sim.contact``), contacts are on (elliptic friction cones) between
+    them and a probe sphere of ``probe_radius`` [m] at the end effector, which carries a
+    force/torque sensor; without, the model has no contacts, probe or sensor.
     """
     rotors = spec.platform.rotors if rotors is None else rotors
     if isinstance(rotors, bool) or not isinstance(rotors, int) or rotors < 4 or rotors % 2:
@@ -175,31 +184,39 @@ def robot_to_mjcf(
     fixed = {d: float(spec.platform.fixed.get(d, 0.0)) for d in PLATFORM_DOFS}
     start = (fixed["x"], fixed["y"], float(spec.platform.fixed.get("z", 1.0)))
     lines = [
-        *_header(spec.name, timestep),
+        *_header(spec.name, timestep, contact=bool(surfaces)),
         "  <worldbody>",
         '    <light name="sun" pos="0 0 6" dir="0 0 -1" directional="true"/>',
         '    <geom name="ground" type="plane" size="20 20 0.1" material="grid"/>',
+        *surface_geoms(surfaces),
         *_platform(spec, positions, spins, start, fixed["yaw"]),
-        *_arm(spec),
+        *_arm(spec, probe_radius if surfaces else None),
         "    </body>",
         "  </worldbody>",
         *_actuators(spec, spins, max_rotor_thrust(spec, rotors), gains),
+        *(sensors() if surfaces else []),
         *_keyframe(spec, start, fixed["yaw"], rotors),
         "</mujoco>",
     ]
     return "\n".join(lines) + "\n"
 
 
-def _header(name: str, timestep: float) -> list[str]:
-    """Model, compiler, physics options, visual quality, defaults and the floor texture."""
+def _header(name: str, timestep: float, contact: bool = False) -> list[str]:
+    """Model, compiler, physics options, visual quality, defaults and the floor texture;
+    contacts (elliptic friction cones) only with ``contact``."""
+    option = (
+        f'  <option timestep="{_f(timestep)}" gravity="0 0 {_f(-GRAVITY)}" '
+        'integrator="implicitfast"'
+    )
+    if contact:
+        physics = [option + ' cone="elliptic"/>']
+    else:
+        physics = [option + ">", '    <flag contact="disable"/>', "  </option>"]
     return [
         f"<mujoco model={quoteattr(name)}>",
         '  <compiler angle="radian" autolimits="true" inertiafromgeom="false" '
         'balanceinertia="true"/>',
-        f'  <option timestep="{_f(timestep)}" gravity="0 0 {_f(-GRAVITY)}" '
-        'integrator="implicitfast">',
-        '    <flag contact="disable"/>',
-        "  </option>",
+        *physics,
         '  <visual><global offwidth="1280" offheight="720"/><quality shadowsize="4096"/></visual>',
         "  <default>",
         '    <geom contype="0" conaffinity="0" group="1"/>',
@@ -249,8 +266,9 @@ def _platform(
     return lines
 
 
-def _arm(spec: RobotSpec) -> list[str]:
-    """The mount and the chain of link bodies with their hinges, ending in the EE site."""
+def _arm(spec: RobotSpec, probe_radius: float | None = None) -> list[str]:
+    """The mount and the chain of link bodies with their hinges, ending in the EE site
+    (and, with ``probe_radius``, the contact probe there: ``contact.probe_body``)."""
     indent = "      "
     lines = [
         f'{indent}<body name="{MOUNT_BODY}" pos="{_v(spec.mount_xyz)}" '
@@ -278,6 +296,8 @@ def _arm(spec: RobotSpec) -> list[str]:
         f'{indent}  <site name={quoteattr(spec.ee_link)} pos="{_v(spec.ee_xyz)}" '
         f'quat="{_quat(spec.ee_rpy)}" size="0.015" rgba="1 0.1 0.1 1" group="1"/>'
     )
+    if probe_radius is not None:
+        lines += probe_body(indent + "  ", _v(spec.ee_xyz), _quat(spec.ee_rpy), probe_radius)
     return lines + closing
 
 

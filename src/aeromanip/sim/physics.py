@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from operator import add
 from pathlib import Path
 from typing import Any
@@ -53,14 +53,16 @@ except RuntimeError as _e:
     ) from None
 from aeromanip.robot.spec import PLATFORM_DOFS, RobotSpec
 from aeromanip.sim.base import SIMULATORS, Simulator
+from aeromanip.sim.contact import PROBE_RADIUS, Surface, read_probe_radius, read_surfaces
+from aeromanip.sim.contact_sensor import CONTACT_COLUMNS, ContactSensor
 from aeromanip.sim.feedback import FeedbackNoise
 from aeromanip.sim.flight_controller import FlightController, FlightGains, Mixer, rotor_layout
 from aeromanip.sim.mjcf import FREE_JOINT, K_M, SERVO_HZ, max_rotor_thrust, robot_to_mjcf
 
-NOISE_KEYS = ("position", "yaw", "joints", "filter")
+NOISE_KEYS = ("position", "yaw", "joints", "filter", "force", "torque")
 OPTION_KEYS = (
     "rate_hz", "outer_rate_hz", "rotors", "seed", "noise", "gains", "servo_hz", "servo_i",
-    "setpoint", "joint_setpoint",
+    "setpoint", "joint_setpoint", "surfaces", "probe_radius",
 )  # fmt: skip
 SETPOINTS = ("position", "velocity")  # what a command sets in the flight controller
 # where each servo's ramp starts: the plan's first state, or where the last ramp ended
@@ -70,7 +72,7 @@ RATE_HZ = 500.0  # [Hz] default physics and attitude/rate-loop rate
 MIN_RATE_HZ = 100.0  # [Hz] lowest accepted physics rate
 MAX_RATE_HZ = 10_000.0  # [Hz] highest (every step runs Python)
 MAX_SERVO_I = 100.0  # [1/s]
-MAX_NOISE = 1.0  # [m or rad] a feedback noise std beyond this is no measurement
+MAX_NOISE = 1.0  # [m, rad, N or N m] a noise std beyond this is no measurement
 OUTER_RATE_HZ = 100.0  # [Hz] default rate of the position/velocity loop
 MIN_OUTER_RATE_HZ = 10.0  # [Hz] lowest accepted outer-loop rate (position bandwidth ~0.35 Hz)
 
@@ -84,6 +86,13 @@ def _number(value: Any, path: str, low: float | None = None, high: float | None 
         raise ConfigError(f"{path}: must be a finite number, got {value!r}")
     check_range(value, path, low, high)
     return float(value)
+
+
+def _surfaces(surfaces: Sequence[Mapping[str, Any] | Surface]) -> tuple[Surface, ...]:
+    """``Surface`` objects as given, tables checked (``sim.contact.read_surfaces``)."""
+    if isinstance(surfaces, (list, tuple)) and all(isinstance(s, Surface) for s in surfaces):
+        return tuple(surfaces)  # type: ignore[arg-type]
+    return read_surfaces(surfaces)
 
 
 @SIMULATORS.register("physics")
@@ -109,6 +118,11 @@ class PhysicsSimulator(Simulator):
         joint_setpoint: ``"ramp"``: each servo ramps from the plan's first joint angle along
             its rate; ``"rate"``: from where its last ramp ended (the rate command
             integrated by the servo: a measured, noisy angle never resets it).
+        surfaces: rigid surfaces the end effector's probe can touch (``sim.contact``: the
+            ``[[physics.surfaces]]`` tables, or ``Surface`` objects); with any, the probe's
+            contact and its wrist force/torque sensor (noise ``"force"`` [N], ``"torque"``
+            [N m] per axis) are read every control step (``measured_wrench``, ``extras``).
+        probe_radius: radius of the end effector's contact sphere [m].
 
     Attributes:
         model, data: the MuJoCo model and data (open ``to_xml()`` in ``mujoco.viewer``).
@@ -133,6 +147,8 @@ class PhysicsSimulator(Simulator):
         servo_i: float = SERVO_I,
         setpoint: str = SETPOINTS[0],
         joint_setpoint: str = JOINT_SETPOINTS[0],
+        surfaces: Sequence[Mapping[str, Any] | Surface] = (),
+        probe_radius: float = PROBE_RADIUS,
     ) -> None:
         self.spec = spec
         for key, value, allowed in (
@@ -146,11 +162,26 @@ class PhysicsSimulator(Simulator):
         self._read_options(rate_hz, outer_rate_hz, noise, seed, servo_i)
         self.h = 1.0 / self.rate_hz
         rotors = spec.platform.rotors if rotors is None else rotors
-        self.xml = robot_to_mjcf(spec, rotors=rotors, timestep=self.h, servo_hz=servo_hz)
+        self.surfaces = _surfaces(surfaces)
+        self.xml = robot_to_mjcf(
+            spec,
+            rotors=rotors,
+            timestep=self.h,
+            servo_hz=servo_hz,
+            surfaces=self.surfaces,
+            probe_radius=read_probe_radius(probe_radius),
+        )
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
         self.rotors = rotors
         self._bind_model()
+        self.contact: ContactSensor | None = None
+        if self.surfaces:
+            self.contact = ContactSensor(
+                self.model, self.data, self.surfaces,
+                self.noise["force"], self.noise["torque"], self.seed,
+            )  # fmt: skip
+            self.instant_extras = (*type(self).instant_extras, *CONTACT_COLUMNS)
         positions, spins = rotor_layout(rotors, spec.platform.arm_length, spec.platform.coaxial)
         self.mixer = Mixer(positions, spins, K_M, max_rotor_thrust(spec, rotors))
         self.mass = float(self.model.body_subtreemass[self._base])
@@ -244,6 +275,10 @@ class PhysicsSimulator(Simulator):
             allowed = {"setpoint": SETPOINTS, "joint_setpoint": JOINT_SETPOINTS}.get(key)
             if allowed is not None and value not in allowed:
                 raise ConfigError(f"physics.{key}: {value!r} is not one of {list(allowed)}")
+            if key == "surfaces":
+                read_surfaces(value)
+            if key == "probe_radius":
+                read_probe_radius(value)
             if key in ("rotors", "seed") and (
                 isinstance(value, bool) or not isinstance(value, int)
             ):
@@ -315,6 +350,8 @@ class PhysicsSimulator(Simulator):
             self._noise_std(), self.noise["filter"], self.outer_rate_hz, self.seed
         )
         self._arm_torque = self._arm_torque_now()
+        if self.contact is not None:
+            self.contact.reset(self.seed)
         self._motor_mean = np.array(self.controller.motors)
         self._spread_mean = float(self._motor_mean.max() - self._motor_mean.min())
 
@@ -419,10 +456,10 @@ class PhysicsSimulator(Simulator):
         return std
 
     def extras(self) -> dict[str, float]:
-        """``roll``, ``pitch`` [rad] now; period means of ``motor_i``, ``thrust_total``,
-        ``rotor_spread`` (largest minus smallest rotor thrust, the differential thrust
-        spent on moments) [N] and ``arm_torque`` [N m] (xy moment of the arm on the base
-        about its CoM, body frame)."""
+        """``roll``, ``pitch`` [rad] and, with surfaces, ``CONTACT_COLUMNS`` now; period
+        means of ``motor_i``, ``thrust_total``, ``rotor_spread`` (largest minus smallest
+        rotor thrust, the differential thrust spent on moments) [N] and ``arm_torque``
+        [N m] (xy moment of the arm on the base about its CoM, body frame)."""
         roll, pitch = self._roll_pitch()
         out = {"roll": roll, "pitch": pitch}
         for i, f in enumerate(self._motor_mean):
@@ -430,7 +467,18 @@ class PhysicsSimulator(Simulator):
         out["thrust_total"] = float(self._motor_mean.sum())
         out["rotor_spread"] = float(self._spread_mean)
         out["arm_torque"] = float(self._arm_torque)
+        if self.contact is not None:  # at this instant, as the state
+            out.update(self.contact.read(self.time).columns())
         return out
+
+    def measured_wrench(self) -> np.ndarray | None:
+        """The wrist sensor's reading now, with its noise: ``[f (3), tau (3)]`` [N, N m],
+        world frame, the force on the end effector and the torque about the sensor site
+        (``sim.contact_sensor``); ``None`` without surfaces (no sensor)."""
+        if self.contact is None:
+            return None
+        reading = self.contact.read(self.time)
+        return np.concatenate([reading.force, reading.torque])
 
     # --- helpers -------------------------------------------------------------------------
 
