@@ -2,9 +2,9 @@
 seed.
 
 The loop: what each QP is given (damping, Hessian, multipliers), the merit's penalty, the
-count of acceptable iterations, a cost that is not a number. Each expectation follows from the rules in the
-module's docstrings (the damping schedule, ``_go_exact``, ``PENALTY_MARGIN`` /
-``PENALTY_FLOOR``), worked out by hand here.
+count of acceptable iterations, a cost that is not a number. Each expectation follows from
+the rules in the module's docstrings (the damping schedule, ``_go_exact``,
+``PENALTY_MARGIN`` / ``PENALTY_FLOOR``), worked out by hand here.
 
 The IPOPT seed: its options, checked before anything is built, the answer it keeps, and
 when it is made."""
