@@ -41,9 +41,11 @@ class Fit:
     """The first-order fit of one step response.
 
     Attributes:
-        tau: the time constant [s]; rate_rms: RMS rate error of the fit [unit/s];
-        r2: share of the rate's variance the fit explains; position_rms, position_rms_0:
-        RMS error of the position predicted by the fitted model and by ``tau = 0`` [unit].
+        tau: the time constant [s].
+        rate_rms: RMS rate error of the fit [unit/s].
+        r2: share of the rate's variance the fit explains.
+        position_rms: RMS error of the position predicted by the fitted model [unit].
+        position_rms_0: the same predicted with ``tau = 0`` [unit].
     """
 
     dof: str
