@@ -15,7 +15,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 
 from aeromanip.sim.contact import (
@@ -25,6 +24,7 @@ from aeromanip.sim.contact import (
     TORQUE_SENSOR,
     Surface,
 )
+from aeromanip.sim.mujoco_import import mujoco
 
 #: log columns of a run with surfaces: the measured force (world), the true normal and
 #: tangential contact forces and the contact flag (1 in contact)

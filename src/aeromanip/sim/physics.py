@@ -30,7 +30,6 @@ are exact means over every physics step of the period.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Mapping, Sequence
 from operator import add
 from pathlib import Path
@@ -40,17 +39,6 @@ import numpy as np
 
 from aeromanip.config import check_range
 from aeromanip.errors import ConfigError, StateError
-
-try:  # MuJoCo's import itself fails on a MUJOCO_GL it does not know (its renderer's check)
-    import mujoco
-except ImportError:
-    raise
-except RuntimeError as _e:
-    raise ConfigError(
-        f"MUJOCO_GL={os.environ.get('MUJOCO_GL', '')!r}: MuJoCo will not load with it "
-        f"({' '.join(str(_e).split())[:120]}); unset it, or set egl or osmesa (offscreen) "
-        "or glfw (a display)"
-    ) from None
 from aeromanip.robot.spec import PLATFORM_DOFS, RobotSpec
 from aeromanip.sim.base import SIMULATORS, Simulator
 from aeromanip.sim.contact import PROBE_RADIUS, Surface, read_probe_radius, read_surfaces
@@ -58,6 +46,7 @@ from aeromanip.sim.contact_sensor import CONTACT_COLUMNS, ContactSensor
 from aeromanip.sim.feedback import FeedbackNoise
 from aeromanip.sim.flight_controller import FlightController, FlightGains, Mixer, rotor_layout
 from aeromanip.sim.mjcf import FREE_JOINT, K_M, SERVO_HZ, max_rotor_thrust, robot_to_mjcf
+from aeromanip.sim.mujoco_import import mujoco
 
 NOISE_KEYS = ("position", "yaw", "joints", "filter", "force", "torque")
 OPTION_KEYS = (
