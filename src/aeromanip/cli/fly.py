@@ -16,11 +16,12 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from aeromanip.errors import ExitCode
+
 if TYPE_CHECKING:
     from aeromanip.experiment.scenario import Scenario
 
-EXIT_DID_NOT_FLY = 3
-EXIT_LINK = 4
+
 MIN_STREAM_HZ = 20.0  # [Hz] between solves (PX4 leaves offboard below 2 Hz)
 MAX_STREAM_HZ = 250.0  # [Hz]
 
@@ -91,12 +92,12 @@ def _fly(sc: Scenario, link: str, out: Path, stream_hz: float, feedback: bool) -
     )
     if result.error is not None:
         print(f"aeromanip: {result.error}; run kept in {result.out_dir}", file=sys.stderr)
-        return EXIT_LINK
+        return ExitCode.LINK
     if result.interrupted is not None:
         where = result.out_dir
         print(f"aeromanip: interrupted: vehicle holding; run kept in {where}", file=sys.stderr)
         return result.interrupted.exit_code
     if not s.get("flight_ok", True):
         print(f"aeromanip: the run did not fly: {s['flight_problem']}", file=sys.stderr)
-        return EXIT_DID_NOT_FLY
+        return ExitCode.DID_NOT_FLY
     return 0

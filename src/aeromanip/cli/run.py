@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-EXIT_DID_NOT_FLY = 3
+from aeromanip.errors import ExitCode
 
 SUMMARY_COLUMNS = (
     ("ee_rmse_m", "EE RMSE m", "{:.4f}"),
@@ -116,5 +116,5 @@ def run(args: argparse.Namespace) -> int:
     ]
     if problems:
         print(f"aeromanip: the run did not fly: {'; '.join(problems)}", file=sys.stderr)
-        return EXIT_DID_NOT_FLY
+        return ExitCode.DID_NOT_FLY
     return 0

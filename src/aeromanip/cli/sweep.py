@@ -18,14 +18,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from aeromanip.errors import ConfigError
+from aeromanip.errors import ConfigError, ExitCode
 
 if TYPE_CHECKING:  # the sweep package (and Ray) load when the command runs
     from aeromanip.sweep.axes import SweepSpec
     from aeromanip.sweep.campaign import Outcome, Settings
     from aeromanip.sweep.plan import Plan
 
-EXIT_RUNS_FAILED = 3
+
 MAX_WORKERS = 4096
 SPREAD_METRICS = (
     "ee_rmse_m",
@@ -227,7 +227,7 @@ def scaling_report(plan: Plan, out: Path, settings: Settings, counts: tuple[int,
         print(
             f"aeromanip: {failed} run(s) failed: see {out}/workers-*/failed.json", file=sys.stderr
         )
-        return EXIT_RUNS_FAILED
+        return ExitCode.DID_NOT_FLY
     return 0
 
 
@@ -268,5 +268,5 @@ def report(result: Outcome, pareto: tuple[str, ...]) -> int:
     if result.errors:
         where = result.results.parent / "failed.json" if result.results else "failed.json"
         print(f"aeromanip: {len(result.errors)} run(s) failed: see {where}", file=sys.stderr)
-        return EXIT_RUNS_FAILED
+        return ExitCode.DID_NOT_FLY
     return 0
