@@ -58,11 +58,14 @@ FIXES = {  # errno name -> what the user can do
 }
 
 
-def describe_os_error(e: OSError) -> str:
-    """One line of an ``OSError``: the file, what failed (with the errno name), the fix."""
+def describe_os_error(e: OSError, root: str | None = None) -> str:
+    """One line of an ``OSError``: the file (relative to ``root`` if below it), what
+    failed (with the errno name), the fix."""
     if e.errno is None:
         return str(e)
     name = errno.errorcode.get(e.errno, str(e.errno))
-    where = f"{e.filename}: " if e.filename is not None else ""
+    where = "" if e.filename is None else f"{e.filename}: "
+    if root is not None and str(e.filename).startswith(f"{root}/"):
+        where = f"{str(e.filename)[len(str(root)) + 1 :]}: "
     fix = FIXES.get(name)
     return f"{where}{e.strerror or name} ({name})" + (f"; {fix}" if fix else "")

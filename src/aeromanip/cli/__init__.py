@@ -66,7 +66,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             args = build_parser().parse_args(argv)
             return int(args.func(args))
     except AeromanipError as e:  # one line, whatever user text the message quotes
-        return _fail(f"error: {e}", e.exit_code)
+        text = describe_os_error(e) if isinstance(e, OSError) else str(e)
+        return _fail(f"error: {text}", e.exit_code)
     except BrokenPipeError:  # e.g. piped into `head`
         sys.stderr.close()
         return 0

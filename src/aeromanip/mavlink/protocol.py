@@ -101,6 +101,8 @@ def parse_link(url: str, what: str = "--link") -> tuple[str, int | None]:
     )
 
 
+TCP_CONNECT_TIMEOUT_S = 5.0  # [s] a tcp: link's peer must accept the connection within this
+
 LINK_FIXES = {  # errno name -> what the user can do
     "EADDRINUSE": "another program (another aeromanip, a ground station) listens on that "
     "port: stop it or use another port",
@@ -112,6 +114,7 @@ LINK_FIXES = {  # errno name -> what the user can do
     "group (dialout)",
     "ENOENT": "no such device: check the cable and the device's name",
     "ETIMEDOUT": "no answer: check the address and the network",
+    "": "check the address and the network",
     "ENETUNREACH": "no route to that network: check the address and the network",
     "EHOSTUNREACH": "no route to that host: check the address and the network",
 }
@@ -137,13 +140,19 @@ def open_link(url: str, source_system: int, source_component: int) -> Any:
                 "or a name this machine resolves"
             ) from None
     kw: dict[str, Any] = {} if baud is None else {"baud": baud}
+    if scheme == "tcp":  # one bounded try (pymavlink's own retries sleep and print)
+        kw["retries"] = 0
     try:
+        if scheme == "tcp":
+            host, _, port = rest.rpartition(":")
+            socket.create_connection((host, int(port)), timeout=TCP_CONNECT_TIMEOUT_S).close()
         return mavutil.mavlink_connection(
             device, source_system=source_system, source_component=source_component, **kw
         )
     except OSError as e:
         name = errno.errorcode.get(e.errno or 0, "")
         fix = LINK_FIXES.get(name, "check the link")
-        raise LinkError(f"--link: {url}: {e.strerror or e} ({name or '?'}); {fix}") from None
+        cause = f"{e.strerror or e}" + (f" ({name})" if name else "")
+        raise LinkError(f"--link: {url}: {cause}; {fix}") from None
     except ValueError as e:  # pymavlink's own checks (e.g. an IPv6 address)
         raise ConfigError(f"--link: {url!r}: {e}") from None
