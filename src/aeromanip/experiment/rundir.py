@@ -43,6 +43,24 @@ def check_writable(path: Path, what: str = "--out") -> None:
         raise ConfigError(f"{what}: {path} cannot be created in {parent}: {e.strerror}") from None
 
 
+def check_file_writable(path: Path, what: str = "--out") -> None:
+    """Fail now, not after the work, if the file ``path`` cannot be written (its
+    directory may be created): not a directory itself, and its directory writable."""
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{what}: {path} is a directory; name a file")
+    parent = path.parent
+    if not parent.exists() or not parent.is_dir():
+        check_writable(parent, what)
+        return
+    probe = parent / f".aeromanip-probe-{os.getpid()}"
+    try:  # os.access says yes to root everywhere, even under /proc: try for real
+        probe.mkdir()
+        probe.rmdir()
+    except OSError as e:
+        raise ConfigError(f"{what}: {path} cannot be written in {parent}: {e.strerror}") from None
+
+
 class RunDirectory:
     """Stage a run in ``<dest>.partial-<pid>`` and move it to ``dest`` when done.
 
