@@ -148,7 +148,7 @@ def bad_links(busy: int, free: int) -> st.SearchStrategy[tuple[str, set[int]]]:
     )
 
 
-@settings(FUZZ, max_examples=120)
+@settings(FUZZ, max_examples=160)
 @given(data=st.data(), command=st.sampled_from(("fly", "sitl")))
 def test_links_that_cannot_open_are_one_line_before_anything_is_built(
     data, command, busy_udp_port, free_tcp_port, nothing_built, tmp_path, capsys
@@ -170,3 +170,185 @@ def test_serial_without_pyserial_says_how_to_install_it(nothing_built, tmp_path,
     argv = ["sitl", "planar", "--variant", "cond-off", "--link", "serial:/dev/ttyUSB0:57600"]
     rc, _, err = call(argv, capsys)
     assert "pip install pyserial" in assert_one_line(err, {ExitCode.BAD_INPUT}, rc, argv)
+
+
+# ------------------------------------------------------------ options, outputs, addresses
+
+
+@pytest.fixture(scope="module")
+def saved_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A short run of ``planar`` on disk (flown once for the module)."""
+    out = tmp_path_factory.mktemp("saved") / "run"
+    argv = ["run", "planar", "--variant", "cond-off", "--set", "duration=0.3", "--quiet"]
+    assert main([*argv, "--no-mcap", "--out", str(out)]) == 0
+    return out / "cond-off" if (out / "cond-off").is_dir() else out
+
+
+@contextlib.contextmanager
+def listener(mode: str) -> Iterator[int]:
+    """A loopback TCP listener that is not Ray: ``silent`` (accepts, says nothing),
+    ``echo`` (sends back what it reads) or ``close`` (hangs up); its port."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        s.settimeout(10.0)
+
+        def serve() -> None:
+            with contextlib.suppress(OSError), s.accept()[0] as c:
+                if mode == "echo":
+                    c.sendall(c.recv(64))
+                if mode != "close":
+                    c.settimeout(10.0)
+                    c.recv(1)  # until the client hangs up
+
+        t = threading.Thread(target=serve, daemon=True)
+        t.start()
+        yield s.getsockname()[1]
+    t.join(11.0)
+
+
+def option_faults(run: Path, tmp: Path) -> st.SearchStrategy[list[str]]:
+    """Command lines with one faulty option each (all refused before any real work)."""
+    a_file = tmp / "a-file"
+    a_file.write_text("x")
+    floats = st.sampled_from((0.0, -1.0, float("inf"), float("-inf"), float("nan"), 1e-300))
+    return st.one_of(
+        floats.map(
+            lambda x: ["sitl", "planar", "--link", "udpin:127.0.0.1:9", "--max-time", str(x)]
+        ),
+        st.sampled_from(("1e-300", "5e-324", "1e-12", "0", "-1", "inf", "nan", "1e308")).map(
+            lambda x: ["replay", str(run), "--speed", x, "--out", str(tmp / "v.mp4")]
+        ),
+        st.sampled_from(
+            ("/proc/x.mp4", "/proc/1/x.gif", f"{a_file}/x.mp4", f"{a_file}/d/x.png", str(tmp))
+        ).map(lambda o: ["replay", str(run), "--out", o]),
+        st.sampled_from(("--speed=x", "--fps", "--nosuch", "--size=0x0", "--quality=x")).map(
+            lambda o: ["replay", str(run), o]
+        ),
+    )
+
+
+@settings(FUZZ, max_examples=90)
+@given(data=st.data())
+def test_faulty_options_and_outputs_are_one_line(data, saved_run, tmp_path, capsys):
+    argv = data.draw(option_faults(saved_run, tmp_path))
+    rc, _, err = call(argv, capsys)
+    assert_one_line(err, {ExitCode.BAD_INPUT}, rc, argv)
+    assert not list(tmp_path.glob("*.mp4")), argv
+
+
+@pytest.mark.parametrize("damage", ["cut-short", "no-meta"])
+def test_replay_of_a_damaged_run_says_what_is_wrong(damage, saved_run, tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    for f in saved_run.iterdir():
+        if f.is_file():
+            (run / f.name).write_bytes(f.read_bytes())
+    if damage == "cut-short":
+        text = (run / "log.csv").read_text()
+        (run / "log.csv").write_text(text[: text.rindex("\n") - 3])
+    else:
+        (run / "meta.json").unlink()
+    argv = ["replay", str(run), "--out", str(tmp_path / "still.png"), "--quiet"]
+    rc, _, err = call(argv, capsys)
+    line = assert_one_line(err, {ExitCode.BAD_INPUT}, rc, argv)
+    assert ("cut short" if damage == "cut-short" else "no meta.json") in line
+    assert (tmp_path / "still.png").is_file()  # what is whole is still rendered
+
+
+@pytest.mark.parametrize("mode", ["silent", "echo", "close", "nobody"])
+def test_sweep_address_that_is_not_ray_is_refused_in_bounded_time(mode, tmp_path, capsys):
+    ctx = listener(mode) if mode != "nobody" else contextlib.nullcontext(_unused_port())
+    with ctx as port:
+        argv = ["sweep", "planar", "--grid", "tasks.cond.weight=1,2", "--out", str(tmp_path / "c")]
+        argv += ["--address", f"127.0.0.1:{port}"]
+        t0 = time.monotonic()
+        rc, _, err = call(argv, capsys)
+    line = assert_one_line(err, {ExitCode.BAD_INPUT}, rc, argv)
+    assert "--address" in line and time.monotonic() - t0 < 8.0, line
+
+
+def _unused_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_sweep_address_probe_accepts_a_grpc_peer():
+    """A peer answering the HTTP/2 preface with SETTINGS (RFC 7540 3.5, as gRPC does)."""
+    from aeromanip.sweep.fanout import check_ray
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+
+        def serve() -> None:
+            with s.accept()[0] as c:
+                c.recv(24)
+                c.sendall(b"\x00\x00\x00\x04\x00\x00\x00\x00\x00")
+
+        t = threading.Thread(target=serve, daemon=True)
+        t.start()
+        check_ray(f"127.0.0.1:{s.getsockname()[1]}")
+        t.join(5.0)
+
+
+# ---------------------------------------------------------------- writes the OS refuses
+
+REFUSALS = ("ENOSPC", "EDQUOT", "EPERM", "EACCES", "EROFS", "EIO")
+
+
+class RefusingFile:
+    """A log stream that writes through until ``budget`` characters, writes the part of
+    the next write that fits, then refuses with ``OSError(code)`` (as a full disk does)."""
+
+    def __init__(self, f: Any, budget: int, code: int) -> None:
+        self.f, self.budget, self.code = f, budget, code
+
+    def write(self, text: str) -> int:
+        if len(text) > self.budget:
+            self.f.write(text[: self.budget])
+            self.f.flush()
+            self.budget = 0
+            raise OSError(self.code, os.strerror(self.code))
+        self.budget -= len(text)
+        return self.f.write(text)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.f, name)
+
+
+@contextlib.contextmanager
+def refusing_writes(budget: int, code: int) -> Iterator[list[logwriter.LogWriter]]:
+    """Every log stream refuses after ``budget`` characters; yields the writers made."""
+    made: list[logwriter.LogWriter] = []
+    real_open, real_init = logwriter.open_stream, logwriter.LogWriter.__init__
+
+    def init(self: logwriter.LogWriter, *args: Any, **kwargs: Any) -> None:
+        made.append(self)
+        real_init(self, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(logwriter, "open_stream", lambda p: RefusingFile(real_open(p), budget, code))
+        mp.setattr(logwriter.LogWriter, "__init__", init)
+        yield made
+
+
+@settings(FUZZ, max_examples=36)
+@given(refusal=st.sampled_from(REFUSALS), budget=st.integers(0, 6000))
+def test_a_refused_write_stops_the_run_cleanly_and_loses_no_row(refusal, budget, tmp_path, capsys):
+    out = Path(tmp_path) / f"run-{refusal}-{budget}"
+    argv = ["run", "planar", "--variant", "cond-off", "--set", "duration=1", "--quiet"]
+    argv += ["--no-mcap", "--out", str(out)]
+    with refusing_writes(budget, getattr(errno, refusal)) as accepted:
+        rc, _, err = call(argv, capsys, RUN_LIMIT_S)
+    line = assert_one_line(err, {ExitCode.IO}, rc, argv)
+    assert f"({refusal})" in line and "log.csv" in line, line
+    m = re.search(r"; (\d+) of (\d+) steps flown, kept in (.+)$", line)
+    assert m and Path(m[3]) == out.absolute(), line
+    run = out / "cond-off" if (out / "cond-off").is_dir() else out
+    rows = len(RunLog.load(run)) if (run / "log.csv").stat().st_size else 0
+    assert rows == accepted[0].rows == int(m[1]), (rows, accepted[0].rows, line)
+    summary = json.loads((run / "summary.json").read_text())
+    assert refusal in summary["stopped_by"] and summary["steps"] == rows
+    assert not list(out.parent.glob(f"{out.name}.partial-*"))
