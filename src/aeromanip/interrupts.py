@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from types import FrameType
+from typing import Any
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -81,8 +83,22 @@ def stop_on_signals(keep: bool = False) -> Iterator[None]:
         return
     clear()
     previous = {s: signal.signal(s, _handler) for s in SIGNALS}
+    previous_hook, sys.unraisablehook = sys.unraisablehook, _quiet_unraisable(sys.unraisablehook)
     try:
         yield
     finally:
+        sys.unraisablehook = previous_hook
         for s, h in previous.items():
             signal.signal(s, _remember if keep else h)
+
+
+def _quiet_unraisable(hook: Callable[[Any], None]) -> Callable[[Any], None]:
+    """``sys.unraisablehook`` that says nothing of a ``RunInterrupted`` raised where
+    Python cannot raise (a weakref callback, a ``__del__``): the signal stays pending and
+    is raised at the next check (``raise_if_interrupted``, the end of ``deferred()``)."""
+
+    def quiet(unraisable: Any) -> None:
+        if not isinstance(unraisable.exc_value, RunInterrupted):
+            hook(unraisable)
+
+    return quiet

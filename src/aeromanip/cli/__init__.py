@@ -10,6 +10,7 @@ from the first line of ``main`` to the last file written.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from collections.abc import Sequence
 from typing import NoReturn
@@ -17,7 +18,7 @@ from typing import NoReturn
 from aeromanip.cli import bench, fly, identify, listing, plot, replay, sitl, sweep
 from aeromanip.cli import run as run_command
 from aeromanip.errors import AeromanipError, ConfigError, ExitCode, describe_os_error
-from aeromanip.interrupts import RunInterrupted, stop_on_signals
+from aeromanip.interrupts import RunInterrupted, interrupted, stop_on_signals
 
 
 def one_line(text: str) -> str:
@@ -65,18 +66,31 @@ def main(argv: Sequence[str] | None = None) -> int:
         with stop_on_signals(keep=argv is None):
             args = build_parser().parse_args(argv)
             return int(args.func(args))
-    except AeromanipError as e:  # one line, whatever user text the message quotes
+    except SystemExit:  # --help
+        raise
+    except BaseException as e:
+        return _ending(e)
+
+
+def _ending(e: BaseException) -> int:
+    """The one line and the exit code of a command stopped by ``e`` (re-raised if it is
+    a bug: no signal, not an error of aeromanip or of the operating system)."""
+    if (signum := interrupted()) is not None or isinstance(e, RunInterrupted):
+        # a signal, or what it broke (an extension's import fails with an ImportError)
+        if isinstance(e, RunInterrupted):
+            return _fail(f"interrupted ({e})", e.exit_code)
+        return _fail(f"interrupted ({signal.Signals(signum).name})", 128 + int(signum))
+    if isinstance(e, AeromanipError):  # one line, whatever user text the message quotes
         text = describe_os_error(e) if isinstance(e, OSError) else str(e)
         return _fail(f"error: {text}", e.exit_code)
-    except BrokenPipeError:  # e.g. piped into `head`
+    if isinstance(e, BrokenPipeError):  # e.g. piped into `head`
         sys.stderr.close()
         return 0
-    except OSError as e:  # a file the command reads or writes
+    if isinstance(e, OSError):  # a file the command reads or writes
         return _fail(f"error: {describe_os_error(e)}", ExitCode.IO)
-    except RunInterrupted as e:
-        return _fail(f"interrupted ({e})", e.exit_code)
-    except KeyboardInterrupt:
+    if isinstance(e, KeyboardInterrupt):
         return _fail("interrupted", ExitCode.SIGINT)
+    raise e
 
 
 if __name__ == "__main__":

@@ -137,11 +137,12 @@ def _fly_and_report(scenarios: dict[str, Scenario], out: Path, args: argparse.Na
 
 def _export(where: Path, args: argparse.Namespace) -> int | None:
     """``run.mcap`` (and the video); an exit code if a signal or the disk stopped it."""
-    from aeromanip.interrupts import RunInterrupted
+    from aeromanip.interrupts import RunInterrupted, raise_if_interrupted
     from aeromanip.viz.export import export_run
 
     try:
         export_run(where, mcap=not args.no_mcap, video=args.video)
+        raise_if_interrupted()  # one Python could not raise (e.g. in a weakref callback)
     except RunInterrupted as e:
         print(
             f"aeromanip: interrupted ({e}) while writing the exports: the run is complete "

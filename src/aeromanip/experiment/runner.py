@@ -191,17 +191,27 @@ def run_scenarios(
             clear_interrupts()  # handled here: the run is kept, the caller decides
         except OSError as e:
             result.io_error = e
-        with deferred():  # what was flown is written and moved into place whole
-            _read_stopped_summaries(result, scenarios, rd.staging)
-            try:
-                if len(scenarios) > 1:  # every variant's summary side by side
-                    top = {**result.summaries, "interrupted": result.interrupted is not None}
-                    write_summary(rd.staging, top)
-                result.out_dir = rd.commit()
-            except OSError as e:
-                result.io_error = result.io_error or e
-                result.out_dir = rd.left_behind
+        try:
+            with deferred():  # what was flown is written and moved into place whole
+                _commit(result, scenarios, rd)
+        except RunInterrupted as e:  # it came meanwhile: the run is in place all the same
+            result.interrupted = result.interrupted or e
+            clear_interrupts()
     return result
+
+
+def _commit(result: RunResult, scenarios: dict[str, Scenario], rd: RunDirectory) -> None:
+    """Summaries side by side (variants), then the staged run moved into place (or left
+    where it is, said in ``result``, if the disk refuses)."""
+    _read_stopped_summaries(result, scenarios, rd.staging)
+    try:
+        if len(scenarios) > 1:  # every variant's summary side by side
+            top = {**result.summaries, "interrupted": result.interrupted is not None}
+            write_summary(rd.staging, top)
+        result.out_dir = rd.commit()
+    except OSError as e:
+        result.io_error = result.io_error or e
+        result.out_dir = rd.left_behind
 
 
 def _read_stopped_summaries(result: RunResult, scenarios: dict, staging: Path) -> None:
