@@ -225,7 +225,14 @@ def option_faults(run: Path, tmp: Path) -> st.SearchStrategy[list[str]]:
         st.sampled_from(("--speed=x", "--fps", "--nosuch", "--size=0x0", "--quality=x")).map(
             lambda o: ["replay", str(run), o]
         ),
+        st.tuples(st.sampled_from(("--metrics", "--pareto")), st.sampled_from(BAD_METRICS)).map(
+            lambda om: [*SWEEP, "--out", str(tmp / "c"), om[0], f"{om[1]},ee_rmse_m"]
+        ),
     )
+
+
+SWEEP = ["sweep", "waypoints", "--variant", "hierarchical", "--grid", "duration=1,2", "--check"]
+BAD_METRICS = ("nosuch", "ee_rmse", "EE_RMSE_M", "levels", "duration.x", " ", "run_id.0")
 
 
 @settings(FUZZ, max_examples=90)
@@ -335,7 +342,7 @@ def refusing_writes(budget: int, code: int) -> Iterator[list[logwriter.LogWriter
 
 
 @settings(FUZZ, max_examples=36)
-@given(refusal=st.sampled_from(REFUSALS), budget=st.integers(0, 6000))
+@given(refusal=st.sampled_from(REFUSALS), budget=st.integers(0, 3500))
 def test_a_refused_write_stops_the_run_cleanly_and_loses_no_row(refusal, budget, tmp_path, capsys):
     out = Path(tmp_path) / f"run-{refusal}-{budget}"
     argv = ["run", "planar", "--variant", "cond-off", "--set", "duration=1", "--quiet"]

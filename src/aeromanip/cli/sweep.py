@@ -163,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
     from aeromanip.nmpc.backends.codegen import cache_dir
     from aeromanip.sweep.campaign import DEFAULT_PARETO, Settings, run_campaign
     from aeromanip.sweep.fanout import MAX_RETRIES, check_ray
-    from aeromanip.sweep.plan import plan_campaign
+    from aeromanip.sweep.plan import check_metric_names, plan_campaign
 
     spec = _spec(args)
     pareto = DEFAULT_PARETO if args.pareto is None else _names(args.pareto, "--pareto", 2)
@@ -173,6 +173,8 @@ def run(args: argparse.Namespace) -> int:
     check_writable(out)
     check_ray(args.address)
     plan = plan_campaign(args.scenario, spec)
+    for option, names in (("--metrics", metrics), ("--pareto", args.pareto and pareto)):
+        check_metric_names(plan, names or (), option)
     n, bad = len(plan.runs), len(plan.invalid)
     print(
         f"sweep {args.scenario}: {n} runs over {', '.join(plan.spec.keys)}; "
