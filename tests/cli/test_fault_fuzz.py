@@ -359,3 +359,38 @@ def test_a_refused_write_stops_the_run_cleanly_and_loses_no_row(refusal, budget,
     summary = json.loads((run / "summary.json").read_text())
     assert refusal in summary["stopped_by"] and summary["steps"] == rows
     assert not list(out.parent.glob(f"{out.name}.partial-*"))
+
+
+@pytest.fixture
+def small_tmpfs(tmp_path: Path) -> Iterator[Path]:
+    """A 48 KiB tmpfs (skipped where mounting is not permitted, e.g. unprivileged CI)."""
+    import shutil
+    import subprocess
+
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if shutil.which("mount") is None:
+        pytest.skip("no mount command")
+    cmd = ["mount", "-t", "tmpfs", "-o", "size=48k", "tmpfs", str(mnt)]
+    if subprocess.run(cmd, capture_output=True).returncode != 0:
+        pytest.skip("mounting a tmpfs is not permitted here")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def test_a_full_filesystem_stops_the_run_cleanly(small_tmpfs, capsys):
+    out = small_tmpfs / "run"
+    argv = ["run", "planar", "--variant", "cond-off", "--set", "duration=20", "--quiet"]
+    argv += ["--no-mcap", "--out", str(out)]
+    rc, _, err = call(argv, capsys, RUN_LIMIT_S)
+    line = assert_one_line(err, {ExitCode.IO}, rc, argv)
+    assert "(ENOSPC)" in line, line
+    m = re.search(r"; (\d+) of (\d+) steps flown, kept in (.+)$", line)
+    assert m and Path(m[3]) == out.absolute(), line
+    run = out / "cond-off" if (out / "cond-off").is_dir() else out
+    rows = len(RunLog.load(run)) if (run / "log.csv").is_file() else 0
+    assert rows == int(m[1]) and rows > 0, line
+    if (run / "summary.json").is_file():  # when the disk still took it
+        assert json.loads((run / "summary.json").read_text())["steps"] == rows

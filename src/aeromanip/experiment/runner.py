@@ -165,8 +165,11 @@ def _write_stopped_summary(sc: Scenario, out_dir: Path, why: str, interrupted: b
         with contextlib.suppress(AeromanipError, OSError):  # e.g. cut before its first row
             summary = summarize(sc, RunLog.load(out_dir), interrupted=interrupted)
     summary.update(interrupted=interrupted, stopped_by=why)
-    with contextlib.suppress(OSError):
+    try:
         write_summary(out_dir, summary)
+    except OSError:  # the disk refuses it too: no half-written summary left
+        with contextlib.suppress(OSError):
+            (out_dir / SUMMARY_FILE).unlink(missing_ok=True)
 
 
 def run_scenarios(
@@ -218,9 +221,14 @@ def _read_stopped_summaries(result: RunResult, scenarios: dict, staging: Path) -
     """The summary of the variant a stop cut short (on disk, if it could be written)."""
     for variant in scenarios:
         d = _variant_dir(staging, variant)
-        if variant not in result.summaries and (d / SUMMARY_FILE).is_file():
-            with contextlib.suppress(OSError, ValueError):
+        if variant in result.summaries:
+            continue
+        with contextlib.suppress(OSError, ValueError):
+            if (d / SUMMARY_FILE).is_file():
                 result.summaries[variant] = read_summary(d)
+        with contextlib.suppress(OSError, ValueError):
+            if variant not in result.summaries and (d / LOG_FILE).is_file():
+                result.summaries[variant] = {"steps": len(RunLog.load(d))}  # no summary: rows
 
 
 def _variant_dir(root: Path, variant: str) -> Path:
