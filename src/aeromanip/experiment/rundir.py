@@ -17,6 +17,7 @@ from pathlib import Path
 from types import TracebackType
 
 from aeromanip.errors import ConfigError
+from aeromanip.interrupts import RunInterrupted, deferred
 
 PREVIOUS = ".previous"  # suffix of the run kept aside when a new one takes its place
 
@@ -80,11 +81,17 @@ class RunDirectory:
 
     def __enter__(self) -> RunDirectory:
         check_writable(self.dest)
-        self.dest.parent.mkdir(parents=True, exist_ok=True)
-        self._lock_fd = self._lock()
-        if self.staging.exists():  # a crashed run of a process with our pid: not ours
-            shutil.rmtree(self.staging)
-        self.staging.mkdir()
+        try:
+            with deferred():  # a signal meanwhile: nothing half-made left behind
+                self.dest.parent.mkdir(parents=True, exist_ok=True)
+                self._lock_fd = self._lock()
+                if self.staging.exists():  # a crashed run of a process with our pid
+                    shutil.rmtree(self.staging)
+                self.staging.mkdir()
+        except RunInterrupted:
+            self.__exit__(None, None, None)
+            shutil.rmtree(self.staging, ignore_errors=True)
+            raise
         return self
 
     def _lock(self) -> int:
