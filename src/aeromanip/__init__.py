@@ -6,24 +6,37 @@ hierarchy, bounds and self-collision constraints, solved in a receding horizon.
 """
 
 from aeromanip.errors import AeromanipError, ConfigError, InfeasibleProblemError, StateError
-from aeromanip.nmpc.constraints import Bounds, Clearance, PathConstraint, UserConstraint
-from aeromanip.nmpc.controller import Command, Controller
-from aeromanip.nmpc.problem import Problem
-from aeromanip.robot.kinematics import Kinematics
-from aeromanip.robot.loader import builtin_robots, load_robot, robot_from_table
-from aeromanip.robot.spec import Inertial, Joint, Platform, RobotSpec
-from aeromanip.robot.urdf import arm_from_urdf
-from aeromanip.robot.urdf_export import robot_to_urdf
-from aeromanip.tasks import (
-    CogAlignment,
-    CogVelocity,
-    ConditionNumber,
-    ControlRate,
-    EndEffectorTracking,
-    Manipulability,
-    Stage,
-    Task,
-)
+from aeromanip.registry import lazy_exports
+
+# each import on first use: the command line answers (and handles Ctrl-C) before numpy
+# and CasADi are loaded
+_LAZY = {
+    "Bounds": "aeromanip.nmpc.constraints",
+    "Clearance": "aeromanip.nmpc.constraints",
+    "PathConstraint": "aeromanip.nmpc.constraints",
+    "UserConstraint": "aeromanip.nmpc.constraints",
+    "Command": "aeromanip.nmpc.controller",
+    "Controller": "aeromanip.nmpc.controller",
+    "Problem": "aeromanip.nmpc.problem",
+    "Kinematics": "aeromanip.robot.kinematics",
+    "builtin_robots": "aeromanip.robot.loader",
+    "load_robot": "aeromanip.robot.loader",
+    "robot_from_table": "aeromanip.robot.loader",
+    "Inertial": "aeromanip.robot.spec",
+    "Joint": "aeromanip.robot.spec",
+    "Platform": "aeromanip.robot.spec",
+    "RobotSpec": "aeromanip.robot.spec",
+    "arm_from_urdf": "aeromanip.robot.urdf",
+    "robot_to_urdf": "aeromanip.robot.urdf_export",
+    "CogAlignment": "aeromanip.tasks",
+    "CogVelocity": "aeromanip.tasks",
+    "ConditionNumber": "aeromanip.tasks",
+    "ControlRate": "aeromanip.tasks",
+    "EndEffectorTracking": "aeromanip.tasks",
+    "Manipulability": "aeromanip.tasks",
+    "Stage": "aeromanip.tasks",
+    "Task": "aeromanip.tasks",
+}
 
 __version__ = "0.1.0"
 
@@ -58,3 +71,5 @@ __all__ = [
     "robot_from_table",
     "robot_to_urdf",
 ]
+
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY, globals())

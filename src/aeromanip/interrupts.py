@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from types import FrameType
+from typing import Any
 
-EXIT_CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}  # 128 + the signal's number
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 class RunInterrupted(KeyboardInterrupt):
@@ -26,7 +28,7 @@ class RunInterrupted(KeyboardInterrupt):
 
     def __init__(self, signum: int) -> None:
         self.signum = signum
-        self.exit_code = EXIT_CODES.get(signal.Signals(signum), 128 + int(signum))
+        self.exit_code = 128 + int(signum)  # the shell's convention: 130, 143
         super().__init__(signal.Signals(signum).name)
 
 
@@ -38,6 +40,10 @@ def _handler(signum: int, frame: FrameType | None) -> None:
     _pending.append(signum)
     if not _deferring:
         raise RunInterrupted(signum)
+
+
+def _remember(signum: int, frame: FrameType | None) -> None:
+    _pending.append(signum)
 
 
 @contextlib.contextmanager
@@ -68,16 +74,31 @@ def clear() -> None:
 
 
 @contextlib.contextmanager
-def stop_on_signals() -> Iterator[None]:
+def stop_on_signals(keep: bool = False) -> Iterator[None]:
     """Within the block, SIGINT and SIGTERM raise ``RunInterrupted`` (main thread only;
-    elsewhere the block changes nothing). The previous handlers are restored after."""
+    elsewhere the block changes nothing). The previous handlers are restored after, or,
+    with ``keep`` (a process about to exit), signals are only remembered from then on."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     clear()
-    previous = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    previous = {s: signal.signal(s, _handler) for s in SIGNALS}
+    previous_hook, sys.unraisablehook = sys.unraisablehook, _quiet_unraisable(sys.unraisablehook)
     try:
         yield
     finally:
+        sys.unraisablehook = previous_hook
         for s, h in previous.items():
-            signal.signal(s, h)
+            signal.signal(s, _remember if keep else h)
+
+
+def _quiet_unraisable(hook: Callable[[Any], None]) -> Callable[[Any], None]:
+    """``sys.unraisablehook`` that says nothing of a ``RunInterrupted`` raised where
+    Python cannot raise (a weakref callback, a ``__del__``): the signal stays pending and
+    is raised at the next check (``raise_if_interrupted``, the end of ``deferred()``)."""
+
+    def quiet(unraisable: Any) -> None:
+        if not isinstance(unraisable.exc_value, RunInterrupted):
+            hook(unraisable)
+
+    return quiet

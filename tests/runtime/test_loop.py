@@ -7,6 +7,9 @@ meanwhile, and the flight over MAVLink tracked 1.8x worse than in physics over i
 first 5 s (tests/mavlink/test_fly_against_sitl.py).
 """
 
+import errno
+import json
+import os
 import threading
 import time
 
@@ -79,3 +82,42 @@ def test_the_first_plan_flies_from_mission_time_zero():
     assert np.all(vx > 0.01), vx[:10]
     held = [s for w, s in vehicle.setpoints if w < t0]
     assert held and all(s.velocity == (0.0, 0.0, 0.0) for s in held)
+
+
+class RefusingStream:
+    """A log stream whose third write (the header, a row, then this) writes half of its
+    text and fails as a full disk does."""
+
+    def __init__(self, f) -> None:
+        self.f, self.writes = f, 0
+
+    def write(self, text: str) -> int:
+        self.writes += 1
+        if self.writes >= 3:
+            self.f.write(text[: len(text) // 2])
+            self.f.flush()
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return self.f.write(text)
+
+    def __getattr__(self, name: str):
+        return getattr(self.f, name)
+
+
+def test_a_refused_write_stops_the_flight_holding_and_keeps_the_rows(tmp_path, monkeypatch):
+    import aeromanip.experiment.logwriter as logwriter
+    from aeromanip.experiment.runlog import RunLog
+    from aeromanip.runtime.session import fly_session
+
+    real_open = logwriter.open_stream
+    monkeypatch.setattr(logwriter, "open_stream", lambda p: RefusingStream(real_open(p)))
+    sc = next(iter(load_scenarios("flight", ["duration=2.0"]).values()))  # 4 steps at 2 Hz
+    vehicle = StillVehicle(np.array(sc.x0))
+    result = fly_session(RealtimeFlight(sc, vehicle, vehicle), tmp_path / "out", "memory")
+
+    assert isinstance(result.io_error, OSError) and result.io_error.errno == errno.ENOSPC
+    assert vehicle.modes[-1] == "hold"  # the mission stopped, the vehicle holding
+    assert result.out_dir == (tmp_path / "out").absolute()
+    log = RunLog.load(result.out_dir)
+    assert len(log) == 1 == result.summary["steps"]  # the row written; the cut one dropped
+    assert "ENOSPC" in result.summary["stopped_by"]
+    assert json.loads((result.out_dir / "summary.json").read_text())["steps"] == 1

@@ -6,7 +6,8 @@ the arm's joint targets go through the autopilot (``MAV_CMD_DO_SET_ACTUATOR``). 
 directory is the output contract's, written as it flies. Exit codes: 0 the mission flew;
 2 bad input; 3 it flew but did not really fly (as ``aeromanip run``); 4 the link was lost,
 the autopilot refused (arming, offboard) or left offboard (a pilot took over); 130 / 143
-stopped by SIGINT / SIGTERM, the vehicle left holding.
+stopped by SIGINT / SIGTERM, the vehicle left holding; 5 a row could not be written (disk
+full, permission, read-only, I/O error): the flight stopped, the vehicle left holding.
 """
 
 from __future__ import annotations
@@ -16,11 +17,12 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from aeromanip.errors import ExitCode
+
 if TYPE_CHECKING:
     from aeromanip.experiment.scenario import Scenario
 
-EXIT_DID_NOT_FLY = 3
-EXIT_LINK = 4
+
 MIN_STREAM_HZ = 20.0  # [Hz] between solves (PX4 leaves offboard below 2 Hz)
 MAX_STREAM_HZ = 250.0  # [Hz]
 
@@ -89,14 +91,22 @@ def _fly(sc: Scenario, link: str, out: Path, stream_hz: float, feedback: bool) -
         f"{s['setpoint_rate_hz']:.1f} Hz; run in {result.out_dir}",
         flush=True,
     )
+    if result.io_error is not None:
+        why = s.get("stopped_by", str(result.io_error))
+        print(
+            f"aeromanip: error: the flight stopped (vehicle holding): {why}; "
+            f"{s.get('steps', 0)} steps kept in {result.out_dir}",
+            file=sys.stderr,
+        )
+        return ExitCode.IO
     if result.error is not None:
         print(f"aeromanip: {result.error}; run kept in {result.out_dir}", file=sys.stderr)
-        return EXIT_LINK
+        return ExitCode.LINK
     if result.interrupted is not None:
         where = result.out_dir
         print(f"aeromanip: interrupted: vehicle holding; run kept in {where}", file=sys.stderr)
         return result.interrupted.exit_code
     if not s.get("flight_ok", True):
         print(f"aeromanip: the run did not fly: {s['flight_problem']}", file=sys.stderr)
-        return EXIT_DID_NOT_FLY
+        return ExitCode.DID_NOT_FLY
     return 0

@@ -2,13 +2,18 @@
 
 A directory of variants renders them side by side. ``--out`` picks the format by its
 suffix: ``.mp4`` (default ``RUN_DIR/replay.mp4``), ``.gif`` or ``.png`` (one still at
-``--at``). ``--mcap`` also (re)writes each run's ``run.mcap`` for Foxglove.
+``--at``). ``--mcap`` also (re)writes each run's ``run.mcap`` for Foxglove. A damaged run
+(its log cut short, no ``meta.json``) is rendered from what is whole, and the command
+says what is wrong and exits 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
+
+from aeromanip.errors import ExitCode
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -75,4 +80,7 @@ def run(args: argparse.Namespace) -> int:
     if args.mcap:
         for path in write_mcaps(Path(args.dir)):
             print(f"wrote {path}")
+    if result.problems:  # rendered what is whole, but the run is damaged: not a clean 0
+        print(f"aeromanip: error: {'; '.join(result.problems)}", file=sys.stderr)
+        return ExitCode.BAD_INPUT
     return 0

@@ -3,8 +3,10 @@
 Everything is checked before anything is built or flown (the scenario, the backend's
 options, that ``--out`` can be written). Exit codes: 0 the run flew; 2 bad input;
 3 the run did not really fly (a step stopped the robot, or more steps failed than the
-scenario's ``max_failure_ratio``: the outputs are kept); 130 / 143 stopped by SIGINT
-(Ctrl-C) / SIGTERM, with the rows flown so far kept and ``"interrupted": true``.
+scenario's ``max_failure_ratio``: the outputs are kept); 5 a write was refused (disk
+full, permission, read-only, I/O error): the rows written so far kept, the summary saying
+why (``"stopped_by"``); 130 / 143 stopped by SIGINT (Ctrl-C) / SIGTERM, with the rows flown
+so far kept and ``"interrupted": true``.
 """
 
 from __future__ import annotations
@@ -13,8 +15,12 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-EXIT_DID_NOT_FLY = 3
+from aeromanip.errors import ExitCode, describe_os_error
+
+if TYPE_CHECKING:
+    from aeromanip.experiment.scenario import Scenario
 
 SUMMARY_COLUMNS = (
     ("ee_rmse_m", "EE RMSE m", "{:.4f}"),
@@ -75,9 +81,7 @@ def format_summary(summaries: dict[str, dict]) -> str:
 def run(args: argparse.Namespace) -> int:
     """Check, fly, report; the exit code says whether the run flew (module docstring)."""
     from aeromanip.experiment.rundir import check_writable
-    from aeromanip.experiment.runner import run_scenarios
     from aeromanip.experiment.scenario import load_scenarios
-    from aeromanip.interrupts import stop_on_signals
 
     scenarios = load_scenarios(args.scenario, args.set or [], args.variant)
     first = next(iter(scenarios.values()))
@@ -92,22 +96,33 @@ def run(args: argparse.Namespace) -> int:
         print(f"{args.scenario}: {len(scenarios)} run(s), {steps} control steps -> {out}: ok")
         return 0
     print(f"running {args.scenario}: {len(scenarios)} run(s), {steps} control steps -> {out}")
+    return _fly_and_report(scenarios, out, args)
+
+
+def _fly_and_report(scenarios: dict[str, Scenario], out: Path, args: argparse.Namespace) -> int:
+    """Fly, print the table, write the exports; one line on stderr for any stop."""
+    from aeromanip.experiment.runner import run_scenarios
+    from aeromanip.interrupts import stop_on_signals
+
     t0 = time.perf_counter()
     with stop_on_signals():
         result = run_scenarios(scenarios, out, progress=not args.quiet)
     print(format_summary(result.summaries))
     where = result.out_dir.resolve() if result.out_dir else out
-    from aeromanip.viz.export import export_run
-
+    steps = sum(sc.steps for sc in scenarios.values())
+    flown = sum(int(s.get("steps", 0)) for s in result.summaries.values())
+    kept = f"{flown} of {steps} steps flown, kept in {where}"
     if result.interrupted is not None:  # stop at once: ``aeromanip replay DIR --mcap`` later
-        flown = sum(int(s.get("steps", 0)) for s in result.summaries.values())
-        print(
-            f"aeromanip: interrupted ({result.interrupted}): {flown} of {steps} steps flown, "
-            f"kept in {where}",
-            file=sys.stderr,
-        )
+        print(f"aeromanip: interrupted ({result.interrupted}): {kept}", file=sys.stderr)
         return result.interrupted.exit_code
-    export_run(where, mcap=not args.no_mcap, video=args.video)
+    if result.io_error is not None:
+        from aeromanip.experiment.rundir import RunDirectory
+
+        why = describe_os_error(result.io_error, root=str(RunDirectory(out).staging))
+        print(f"aeromanip: error: the run stopped: {why}; {kept}", file=sys.stderr)
+        return ExitCode.IO
+    if (code := _export(where, args)) is not None:
+        return code
     print(f"done in {time.perf_counter() - t0:.1f} s; outputs in {where}")
     problems = [
         f"{v or s.get('scenario')}: {s['flight_problem']}"
@@ -116,5 +131,30 @@ def run(args: argparse.Namespace) -> int:
     ]
     if problems:
         print(f"aeromanip: the run did not fly: {'; '.join(problems)}", file=sys.stderr)
-        return EXIT_DID_NOT_FLY
+        return ExitCode.DID_NOT_FLY
     return 0
+
+
+def _export(where: Path, args: argparse.Namespace) -> int | None:
+    """``run.mcap`` (and the video); an exit code if a signal or the disk stopped it."""
+    from aeromanip.interrupts import RunInterrupted, raise_if_interrupted
+    from aeromanip.viz.export import export_run
+
+    try:
+        export_run(where, mcap=not args.no_mcap, video=args.video)
+        raise_if_interrupted()  # one Python could not raise (e.g. in a weakref callback)
+    except RunInterrupted as e:
+        print(
+            f"aeromanip: interrupted ({e}) while writing the exports: the run is complete "
+            f"in {where} (aeromanip replay {where} --mcap writes them)",
+            file=sys.stderr,
+        )
+        return e.exit_code
+    except OSError as e:
+        print(
+            f"aeromanip: error: exports not written: {describe_os_error(e)}; the run is "
+            f"complete in {where}",
+            file=sys.stderr,
+        )
+        return ExitCode.IO
+    return None

@@ -8,6 +8,7 @@ to ``DIR``. Runs until ``--max-time`` or Ctrl-C / SIGTERM (exit 0: a SITL is sto
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 MAX_STATE_HZ = 500.0  # [Hz]
@@ -42,8 +43,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(
             f"--state-hz: {state_hz:g} is not in [{MIN_STATE_HZ:g}, {MAX_STATE_HZ:g}]"
         )
-    if args.max_time is not None and not args.max_time > 0:
-        raise ConfigError(f"--max-time: {args.max_time:g} must be > 0 seconds")
+    if args.max_time is not None and not 0 < args.max_time < math.inf:
+        raise ConfigError(
+            f"--max-time: {args.max_time:g} is not a finite number of seconds > 0 "
+            "(leave it out to serve until Ctrl-C)"
+        )
     sc = one_scenario(args.scenario, args.set or [], args.variant)
     out = Path(args.out or "runs/sitl")
     check_writable(out)

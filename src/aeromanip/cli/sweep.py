@@ -18,14 +18,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from aeromanip.errors import ConfigError
+from aeromanip.errors import ConfigError, ExitCode
 
 if TYPE_CHECKING:  # the sweep package (and Ray) load when the command runs
     from aeromanip.sweep.axes import SweepSpec
     from aeromanip.sweep.campaign import Outcome, Settings
     from aeromanip.sweep.plan import Plan
 
-EXIT_RUNS_FAILED = 3
+
 MAX_WORKERS = 4096
 SPREAD_METRICS = (
     "ee_rmse_m",
@@ -163,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
     from aeromanip.nmpc.backends.codegen import cache_dir
     from aeromanip.sweep.campaign import DEFAULT_PARETO, Settings, run_campaign
     from aeromanip.sweep.fanout import MAX_RETRIES, check_ray
-    from aeromanip.sweep.plan import plan_campaign
+    from aeromanip.sweep.plan import check_metric_names, plan_campaign
 
     spec = _spec(args)
     pareto = DEFAULT_PARETO if args.pareto is None else _names(args.pareto, "--pareto", 2)
@@ -173,6 +173,8 @@ def run(args: argparse.Namespace) -> int:
     check_writable(out)
     check_ray(args.address)
     plan = plan_campaign(args.scenario, spec)
+    for option, names in (("--metrics", metrics), ("--pareto", args.pareto and pareto)):
+        check_metric_names(plan, names or (), option)
     n, bad = len(plan.runs), len(plan.invalid)
     print(
         f"sweep {args.scenario}: {n} runs over {', '.join(plan.spec.keys)}; "
@@ -227,7 +229,7 @@ def scaling_report(plan: Plan, out: Path, settings: Settings, counts: tuple[int,
         print(
             f"aeromanip: {failed} run(s) failed: see {out}/workers-*/failed.json", file=sys.stderr
         )
-        return EXIT_RUNS_FAILED
+        return ExitCode.DID_NOT_FLY
     return 0
 
 
@@ -268,5 +270,5 @@ def report(result: Outcome, pareto: tuple[str, ...]) -> int:
     if result.errors:
         where = result.results.parent / "failed.json" if result.results else "failed.json"
         print(f"aeromanip: {len(result.errors)} run(s) failed: see {where}", file=sys.stderr)
-        return EXIT_RUNS_FAILED
+        return ExitCode.DID_NOT_FLY
     return 0

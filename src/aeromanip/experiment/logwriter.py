@@ -4,20 +4,23 @@ system as it is logged (line-buffered), so a crash loses at most the row being w
 The columns are fixed before the first row (a CSV has one header): a row may leave some
 out (written as empty text or ``nan``), never add one. The format is ``RunLog.save``'s,
 so ``RunLog.load`` reads a streamed log, even one cut short by a crash, exactly.
-``meta.json`` is written when the log opens.
+``meta.json`` is written when the log opens. A write the operating system refuses (disk
+full, permission, read-only, I/O error) closes the log and raises ``OutputError``: the rows
+before it stay readable (a last row cut short is dropped by ``RunLog.load``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, TextIO
 
-from aeromanip.errors import ConfigError
+from aeromanip.errors import ConfigError, OutputError
 from aeromanip.experiment.runlog import LOG_FILE, META_FILE, TEXT_COLUMNS, jsonable
 
 
@@ -44,23 +47,40 @@ class LogWriter:
         self.path = out_dir / LOG_FILE
         self.columns = list(columns)
         self._known = set(self.columns)
-        self._file = self.path.open("w", newline="", buffering=1)  # line-buffered
+        self._file = open_stream(self.path)
         self._csv = csv.writer(self._file, lineterminator="\n")
-        self._csv.writerow(self.columns)
         self.rows = 0
+        self._guarded(self.columns)
 
     def write(self, row: Mapping[str, Any]) -> None:
         """Append one row (missing columns empty or ``nan``)."""
         extra = set(row) - self._known
         if extra:
             raise ConfigError(f"log: row has columns not in the header: {sorted(extra)}")
-        self._csv.writerow([_cell(c, row.get(c)) for c in self.columns])
+        self._guarded([_cell(c, row.get(c)) for c in self.columns])
         self.rows += 1
+
+    def _guarded(self, cells: list[str]) -> None:
+        """Write one line; a refused write closes the log and raises ``OutputError``."""
+        try:
+            self._csv.writerow(cells)
+        except OSError as e:
+            self._abandon()
+            raise OutputError(e.errno, e.strerror, str(self.path)) from None
+
+    def _abandon(self) -> None:
+        """Close after a failed write (what the buffer still holds is lost: one row)."""
+        with contextlib.suppress(OSError):
+            self._file.close()
 
     def close(self) -> None:
         """Flush and close (idempotent)."""
         if not self._file.closed:
-            self._file.flush()
+            try:
+                self._file.flush()
+            except OSError as e:
+                self._abandon()
+                raise OutputError(e.errno, e.strerror, str(self.path)) from None
             self._file.close()
 
     def __enter__(self) -> LogWriter:
@@ -73,6 +93,11 @@ class LogWriter:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+def open_stream(path: Path) -> TextIO:
+    """``path`` opened for the log: text, line-buffered (each row handed to the OS)."""
+    return path.open("w", newline="", buffering=1)
 
 
 def _cell(column: str, value: Any) -> str:

@@ -17,6 +17,7 @@ from pathlib import Path
 from types import TracebackType
 
 from aeromanip.errors import ConfigError
+from aeromanip.interrupts import RunInterrupted, deferred
 
 PREVIOUS = ".previous"  # suffix of the run kept aside when a new one takes its place
 
@@ -43,6 +44,24 @@ def check_writable(path: Path, what: str = "--out") -> None:
         raise ConfigError(f"{what}: {path} cannot be created in {parent}: {e.strerror}") from None
 
 
+def check_file_writable(path: Path, what: str = "--out") -> None:
+    """Fail now, not after the work, if the file ``path`` cannot be written (its
+    directory may be created): not a directory itself, and its directory writable."""
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{what}: {path} is a directory; name a file")
+    parent = path.parent
+    if not parent.exists() or not parent.is_dir():
+        check_writable(parent, what)
+        return
+    probe = parent / f".aeromanip-probe-{os.getpid()}"
+    try:  # os.access says yes to root everywhere, even under /proc: try for real
+        probe.mkdir()
+        probe.rmdir()
+    except OSError as e:
+        raise ConfigError(f"{what}: {path} cannot be written in {parent}: {e.strerror}") from None
+
+
 class RunDirectory:
     """Stage a run in ``<dest>.partial-<pid>`` and move it to ``dest`` when done.
 
@@ -62,11 +81,17 @@ class RunDirectory:
 
     def __enter__(self) -> RunDirectory:
         check_writable(self.dest)
-        self.dest.parent.mkdir(parents=True, exist_ok=True)
-        self._lock_fd = self._lock()
-        if self.staging.exists():  # a crashed run of a process with our pid: not ours
-            shutil.rmtree(self.staging)
-        self.staging.mkdir()
+        try:
+            with deferred():  # a signal meanwhile: nothing half-made left behind
+                self.dest.parent.mkdir(parents=True, exist_ok=True)
+                self._lock_fd = self._lock()
+                if self.staging.exists():  # a crashed run of a process with our pid
+                    shutil.rmtree(self.staging)
+                self.staging.mkdir()
+        except RunInterrupted:
+            self.__exit__(None, None, None)
+            shutil.rmtree(self.staging, ignore_errors=True)
+            raise
         return self
 
     def _lock(self) -> int:

@@ -5,18 +5,21 @@ A run directory holds (DESIGN.md contract): ``config.toml`` (the resolved scenar
 as the run goes, ``summary.json`` and ``figures/*.png``. A scenario with variants writes
 ``DIR/<variant>/`` each plus ``DIR/summary.json`` and comparison figures. Everything is
 staged beside ``DIR`` and moved into place at the end (``experiment.rundir``). A run
-stopped by a signal keeps the rows it flew, its summary says ``"interrupted": true``,
-and the interrupt is raised again for the caller.
+stopped by a signal or by a write the operating system refused (disk full, permission,
+read-only, I/O error) keeps the rows it flew, its summary says why (``"interrupted"``,
+``"stopped_by"``), and the caller gets the cause in ``RunResult``.
 """
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import tomli_w
 
+from aeromanip.errors import AeromanipError, describe_os_error
 from aeromanip.experiment.closed_loop import fly, log_columns, make_simulator, run_meta
 from aeromanip.experiment.logwriter import LogWriter
 from aeromanip.experiment.plots import plot_comparison, plot_run
@@ -43,6 +46,7 @@ class RunResult:
     summaries: dict[str, dict[str, Any]] = field(default_factory=dict)
     out_dir: Path | None = None
     interrupted: RunInterrupted | None = None
+    io_error: OSError | None = None  # a write refused: the run stopped there
 
 
 def write_static_files(sc: Scenario, out_dir: Path) -> None:
@@ -128,17 +132,22 @@ def run_one(
     sc: Scenario, out_dir: Path, progress: bool = True, figures: bool = True
 ) -> dict[str, Any]:
     """Fly ``sc`` into ``out_dir`` (streamed), then summarise and draw it; return the
-    summary. On an interrupt the summary (``"interrupted": true``) is written from the
-    rows on disk, then the interrupt is raised again."""
+    summary. On an interrupt or a refused write the summary (``"interrupted"``,
+    ``"stopped_by"``) is written from the rows on disk, then the error is raised again."""
     out_dir.mkdir(parents=True, exist_ok=True)
     try:
         write_static_files(sc, out_dir)
         sim = make_simulator(sc)
         with LogWriter(out_dir, log_columns(sc, sim), run_meta(sc)) as writer:
             fly(sc, writer.write, progress=progress, sim=sim)
-    except RunInterrupted:
+    except RunInterrupted as e:
         with deferred():
-            write_summary(out_dir, _interrupted_summary(sc, out_dir))
+            _write_stopped_summary(sc, out_dir, str(e), interrupted=True)
+        raise
+    except OSError as e:
+        with deferred():
+            why = describe_os_error(e, root=str(out_dir))
+            _write_stopped_summary(sc, out_dir, why, interrupted=False)
         raise
     log = RunLog.load(out_dir)
     summary = summarize(sc, log)
@@ -148,19 +157,29 @@ def run_one(
     return summary
 
 
-def _interrupted_summary(sc: Scenario, out_dir: Path) -> dict[str, Any]:
-    """The summary of what an interrupted run flew (nothing, if it stopped before)."""
+def _write_stopped_summary(sc: Scenario, out_dir: Path, why: str, interrupted: bool) -> None:
+    """The summary of what a stopped run flew (nothing, if it stopped before), saying why;
+    not written if the disk refuses it too (the rows on disk are what was flown)."""
+    summary = {"scenario": sc.name, "steps": 0, "steps_planned": sc.steps}
     if (out_dir / LOG_FILE).is_file():
-        return summarize(sc, RunLog.load(out_dir), interrupted=True)
-    return {"scenario": sc.name, "steps": 0, "steps_planned": sc.steps, "interrupted": True}
+        with contextlib.suppress(AeromanipError, OSError):  # e.g. cut before its first row
+            summary = summarize(sc, RunLog.load(out_dir), interrupted=interrupted)
+    summary.update(interrupted=interrupted, stopped_by=why)
+    try:
+        write_summary(out_dir, summary)
+    except OSError:  # the disk refuses it too: no half-written summary left
+        with contextlib.suppress(OSError):
+            (out_dir / SUMMARY_FILE).unlink(missing_ok=True)
 
 
 def run_scenarios(
     scenarios: dict[str, Scenario], out_dir: Path, progress: bool = True, figures: bool = True
 ) -> RunResult:
     """Run every variant into ``out_dir`` (``out_dir/<variant>`` when there are several),
-    staged beside it and moved into place at the end, even when interrupted (then the
-    interrupt is in ``RunResult.interrupted``, for the caller to act on)."""
+    staged beside it and moved into place at the end, even when interrupted or stopped
+    by a refused write (then the cause is in ``RunResult.interrupted`` / ``io_error``, for
+    the caller to act on; ``out_dir`` is where the run lies, the staging directory if it
+    could not be moved into place)."""
     result = RunResult()
     with RunDirectory(out_dir) as rd:
         try:
@@ -173,16 +192,43 @@ def run_scenarios(
         except RunInterrupted as e:
             result.interrupted = e
             clear_interrupts()  # handled here: the run is kept, the caller decides
-            for variant in scenarios:  # the one it stopped (its summary is on disk)
-                d = _variant_dir(rd.staging, variant)
-                if variant not in result.summaries and (d / SUMMARY_FILE).is_file():
-                    result.summaries[variant] = read_summary(d)
-        with deferred():  # what was flown is written and moved into place whole
-            if len(scenarios) > 1:  # every variant's summary side by side
-                top = {**result.summaries, "interrupted": result.interrupted is not None}
-                write_summary(rd.staging, top)
-            result.out_dir = rd.commit()
+        except OSError as e:
+            result.io_error = e
+        try:
+            with deferred():  # what was flown is written and moved into place whole
+                _commit(result, scenarios, rd)
+        except RunInterrupted as e:  # it came meanwhile: the run is in place all the same
+            result.interrupted = result.interrupted or e
+            clear_interrupts()
     return result
+
+
+def _commit(result: RunResult, scenarios: dict[str, Scenario], rd: RunDirectory) -> None:
+    """Summaries side by side (variants), then the staged run moved into place (or left
+    where it is, said in ``result``, if the disk refuses)."""
+    _read_stopped_summaries(result, scenarios, rd.staging)
+    try:
+        if len(scenarios) > 1:  # every variant's summary side by side
+            top = {**result.summaries, "interrupted": result.interrupted is not None}
+            write_summary(rd.staging, top)
+        result.out_dir = rd.commit()
+    except OSError as e:
+        result.io_error = result.io_error or e
+        result.out_dir = rd.left_behind
+
+
+def _read_stopped_summaries(result: RunResult, scenarios: dict, staging: Path) -> None:
+    """The summary of the variant a stop cut short (on disk, if it could be written)."""
+    for variant in scenarios:
+        d = _variant_dir(staging, variant)
+        if variant in result.summaries:
+            continue
+        with contextlib.suppress(OSError, ValueError):
+            if (d / SUMMARY_FILE).is_file():
+                result.summaries[variant] = read_summary(d)
+        with contextlib.suppress(OSError, ValueError):
+            if variant not in result.summaries and (d / LOG_FILE).is_file():
+                result.summaries[variant] = {"steps": len(RunLog.load(d))}  # no summary: rows
 
 
 def _variant_dir(root: Path, variant: str) -> Path:

@@ -25,7 +25,7 @@ from aeromanip.mavlink.protocol import (
     VELOCITY_YAW_RATE,
     load_mavutil,
     mode_name,
-    parse_link,
+    open_link,
 )
 from aeromanip.runtime.transport import LinkError, Setpoint, Transport, VehicleState
 
@@ -42,14 +42,10 @@ class MavlinkTransport(Transport):
     """A link to a PX4 (or the SITL autopilot) over ``url`` (``protocol.parse_link``)."""
 
     def __init__(self, url: str) -> None:
-        device, baud = parse_link(url)
         self.url = url
+        self.conn = open_link(url, SYSTEM_ID, MAV_COMP_ID_ONBOARD_COMPUTER)
         self.mavutil = load_mavutil()
         self.m = self.mavutil.mavlink
-        kw: dict[str, Any] = {} if baud is None else {"baud": baud}
-        self.conn = self.mavutil.mavlink_connection(
-            device, source_system=SYSTEM_ID, source_component=MAV_COMP_ID_ONBOARD_COMPUTER, **kw
-        )
         self._send_lock = threading.Lock()
         self._cond = threading.Condition()
         self._handlers: dict[str, list[Callable[[Any], None]]] = {}

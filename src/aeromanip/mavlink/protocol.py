@@ -19,10 +19,15 @@ be set before its dialect is loaded).
 
 from __future__ import annotations
 
+import errno
+import importlib.util
 import os
+import socket
 from types import ModuleType
+from typing import Any
 
 from aeromanip.errors import ConfigError
+from aeromanip.runtime.transport import LinkError
 
 # PX4 custom modes (px4_custom_mode.h): main modes and the AUTO sub modes used here
 PX4_MAIN_AUTO = 4
@@ -94,3 +99,60 @@ def parse_link(url: str, what: str = "--link") -> tuple[str, int | None]:
         f"{what}: {url!r} is not a MAVLink link; use "
         f"{', '.join(s + ':HOST:PORT' for s in LINK_SCHEMES[:-1])} or serial:DEVICE:BAUD"
     )
+
+
+TCP_CONNECT_TIMEOUT_S = 5.0  # [s] a tcp: link's peer must accept the connection within this
+
+LINK_FIXES = {  # errno name -> what the user can do
+    "EADDRINUSE": "another program (another aeromanip, a ground station) listens on that "
+    "port: stop it or use another port",
+    "ECONNREFUSED": "nothing listens there: start the autopilot (or aeromanip sitl) first, "
+    "or check the port",
+    "EADDRNOTAVAIL": "that is not an address of this machine: listen on 0.0.0.0 or on one "
+    "of its addresses",
+    "EACCES": "not permitted: use a port above 1024, or for a serial device join its "
+    "group (dialout)",
+    "ENOENT": "no such device: check the cable and the device's name",
+    "ETIMEDOUT": "no answer: check the address and the network",
+    "": "check the address and the network",
+    "ENETUNREACH": "no route to that network: check the address and the network",
+    "EHOSTUNREACH": "no route to that host: check the address and the network",
+}
+
+
+def open_link(url: str, source_system: int, source_component: int) -> Any:
+    """A pymavlink connection on ``url``; a link that cannot be opened is one
+    ``LinkError`` line naming the cause and the fix (a missing pyserial: ``ConfigError``)."""
+    device, baud = parse_link(url)
+    mavutil = load_mavutil()
+    scheme, _, rest = url.partition(":")
+    if scheme == "serial":
+        if importlib.util.find_spec("serial") is None:
+            raise ConfigError("--link: serial links need pyserial: pip install pyserial")
+    else:
+        host, _, port = rest.rpartition(":")
+        try:
+            socket.getaddrinfo(host, int(port), socket.AF_INET)
+        except (socket.gaierror, UnicodeError) as e:
+            why = getattr(e, "strerror", None) or str(e)
+            raise LinkError(
+                f"--link: {url}: cannot resolve host {host!r} ({why}); use an IPv4 address "
+                "or a name this machine resolves"
+            ) from None
+    kw: dict[str, Any] = {} if baud is None else {"baud": baud}
+    if scheme == "tcp":  # one bounded try (pymavlink's own retries sleep and print)
+        kw["retries"] = 0
+    try:
+        if scheme == "tcp":
+            host, _, port = rest.rpartition(":")
+            socket.create_connection((host, int(port)), timeout=TCP_CONNECT_TIMEOUT_S).close()
+        return mavutil.mavlink_connection(
+            device, source_system=source_system, source_component=source_component, **kw
+        )
+    except OSError as e:
+        name = errno.errorcode.get(e.errno or 0, "")
+        fix = LINK_FIXES.get(name, "check the link")
+        cause = f"{e.strerror or e}" + (f" ({name})" if name else "")
+        raise LinkError(f"--link: {url}: {cause}; {fix}") from None
+    except ValueError as e:  # pymavlink's own checks (e.g. an IPv6 address)
+        raise ConfigError(f"--link: {url!r}: {e}") from None

@@ -33,7 +33,7 @@ from aeromanip.mavlink.protocol import (
     VELOCITY_YAW_RATE,
     custom_mode,
     load_mavutil,
-    parse_link,
+    open_link,
 )
 from aeromanip.mavlink.vehicle import DENIED, Vehicle
 from aeromanip.nmpc.controller import Command
@@ -54,7 +54,8 @@ class SitlAutopilot:
     """The SITL vehicle of scenario ``sc`` on link ``url`` (module docstring)."""
 
     def __init__(self, sc: Scenario, url: str, state_hz: float = STATE_HZ) -> None:
-        device, baud = parse_link(url)
+        self.conn = open_link(url, 1, 1)  # first: a link that cannot open costs nothing
+        self.m = load_mavutil().mavlink
         self.sc = sc
         # PX4-like: velocity + yaw-rate set-points; the arm's targets are angles (ramps)
         options = {**sc.physics, "setpoint": "velocity", "joint_setpoint": "ramp"}
@@ -68,10 +69,6 @@ class SitlAutopilot:
             "heartbeat": max(1, round(1.0 / (HEARTBEAT_HZ * self.tick))),
             "truth": max(1, round(1.0 / (TRUTH_HZ * self.tick))),
         }
-        mavutil = load_mavutil()
-        self.m = mavutil.mavlink
-        kw: dict[str, Any] = {} if baud is None else {"baud": baud}
-        self.conn = mavutil.mavlink_connection(device, source_system=1, source_component=1, **kw)
         fv = self.sim.model.jnt_dofadr[self.sim.model.joint(FREE_JOINT).id]
         self._vel = self.sim.data.qvel[fv : fv + 3]  # world frame
         self._omega = self.sim.data.qvel[fv + 3 : fv + 6]  # body frame

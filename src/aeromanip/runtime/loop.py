@@ -108,7 +108,8 @@ class RealtimeFlight:
 
     def fly(self, sink: Callable[[Row], None]) -> FlightStats:
         """Fly the mission, handing a row per step to ``sink``; ``LinkError`` if the link
-        is lost or the autopilot refuses, ``RunInterrupted`` on a signal (holding)."""
+        is lost or the autopilot refuses, ``RunInterrupted`` on a signal, ``OSError`` if a
+        row cannot be written (the vehicle left holding in both)."""
         self.transport.connect(CONNECT_TIMEOUT_S)
         m = self._first_state()
         self.follower.hold(m.x)
@@ -127,6 +128,10 @@ class RealtimeFlight:
             raise
         except KeyboardInterrupt:
             self.stats.ending = "interrupted"
+            self._hold()
+            raise
+        except OSError:  # the log cannot be written: stop the mission, the vehicle holding
+            self.stats.ending = "write refused"
             self._hold()
             raise
         finally:

@@ -8,10 +8,12 @@ what it flew is summarised and moved into place.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from aeromanip.errors import describe_os_error
 from aeromanip.experiment.closed_loop import log_columns, run_meta
 from aeromanip.experiment.logwriter import LogWriter
 from aeromanip.experiment.plots import plot_run
@@ -39,6 +41,7 @@ class SessionResult:
     out_dir: Path
     error: LinkError | None = None
     interrupted: RunInterrupted | None = None
+    io_error: OSError | None = None  # a write refused: the flight stopped there
 
 
 def fly_session(
@@ -46,7 +49,7 @@ def fly_session(
 ) -> SessionResult:
     """Fly ``flight`` into run directory ``out``; ``link`` is recorded in the summary."""
     sc = flight.sc
-    error, interrupted = None, None
+    error, interrupted, io_error = None, None, None
     with RunDirectory(out) as rd:
         write_static_files(sc, rd.staging)
         columns = [*log_columns(sc, _NoSimulator()), *RUNTIME_COLUMNS]  # type: ignore[arg-type]
@@ -59,15 +62,31 @@ def fly_session(
         except RunInterrupted as e:
             interrupted = e
             clear_interrupts()
+        except OSError as e:
+            io_error = e
         with deferred():
             summary = _summary(flight, rd.staging, link, interrupted is not None)
             if error is not None:
                 summary["error"] = str(error)
+            if io_error is not None:
+                summary["stopped_by"] = describe_os_error(io_error, root=str(rd.staging))
+                return SessionResult(summary, _keep(rd, summary), None, None, io_error)
             write_summary(rd.staging, summary)
             if figures and error is None and interrupted is None and summary["steps"]:
                 plot_run(RunLog.load(rd.staging), rd.staging / "figures")
             out_dir = rd.commit()
     return SessionResult(summary, out_dir, error, interrupted)
+
+
+def _keep(rd: RunDirectory, summary: dict[str, Any]) -> Path:
+    """After a refused write: the summary if the disk takes it, the run moved into place
+    if it can be; where the run lies."""
+    with contextlib.suppress(OSError):
+        write_summary(rd.staging, summary)
+    try:
+        return rd.commit()
+    except OSError:
+        return rd.staging
 
 
 def _summary(flight: RealtimeFlight, d: Path, link: str, interrupted: bool) -> dict[str, Any]:

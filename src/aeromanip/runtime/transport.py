@@ -12,13 +12,16 @@ from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from aeromanip.errors import AeromanipError
+from aeromanip.errors import AeromanipError, ExitCode
 
 Vec3 = tuple[float, float, float]
 
 
 class LinkError(AeromanipError):
-    """The vehicle did not answer, refused a command, or the link was lost."""
+    """The link could not be opened, the vehicle did not answer, refused a command, or
+    the link was lost."""
+
+    exit_code = ExitCode.LINK
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,8 @@ OBJECT_STORE_BYTES = 128 * 2**20  # local Ray: results are small dicts
 LOCAL_IP = "127.0.0.1"  # an embedded Ray listens on loopback only
 BAR_WIDTH = 24  # characters of the progress bar
 CONNECT_S = 5.0  # [s] a cluster address must answer within this
+HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n"
+HTTP2_SETTINGS = 4  # the frame type a gRPC server answers the preface with
 
 
 NO_RAY = "aeromanip sweep needs Ray, not installed: pip install 'aeromanip[sweep]'"
@@ -62,13 +64,31 @@ def check_ray(address: str | None) -> None:
             f"(or no --address for a local Ray)"
         )
     try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_S).close()
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_S) as c:
+            if not os.environ.get("RAY_USE_TLS") and not _speaks_http2(c):
+                raise ConfigError(
+                    f"--address {address}: something listens there, but not a Ray cluster "
+                    "(no gRPC answer); check the port (ray status shows it)"
+                )
     except OSError as e:
         reason = e.strerror or type(e).__name__
         raise ConfigError(
             f"--address {address}: no Ray cluster answers there ({reason}); start one "
             f"(ray start --head) or drop --address for a local Ray"
         ) from None
+
+
+def _speaks_http2(conn: socket.socket) -> bool:
+    """Does the peer answer an HTTP/2 preface with a SETTINGS frame (as Ray's gRPC servers
+    do) within the socket's timeout?"""
+    conn.sendall(HTTP2_PREFACE + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00")  # empty SETTINGS
+    head = b""
+    while len(head) < 9:
+        chunk = conn.recv(9 - len(head))
+        if not chunk:
+            return False
+        head += chunk
+    return head[3] == HTTP2_SETTINGS
 
 
 class Session(NamedTuple):

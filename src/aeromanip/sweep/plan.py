@@ -133,3 +133,30 @@ def _as_given(spec: SweepSpec, message: str) -> str:
 def scenario_hash(data: dict[str, Any]) -> str:
     """A hash of a scenario's table (a campaign's runs are of one scenario)."""
     return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def check_metric_names(plan: Plan, names: tuple[str, ...], option: str) -> None:
+    """Before the fan-out: every name is a column ``results.csv`` will have (a run's
+    summary computed on a one-row log of the campaign's columns, nothing flown), or an
+    entry of one of its tables (``steps_by_status.fallback``)."""
+    from aeromanip.experiment.closed_loop import log_columns, make_simulator, run_meta
+    from aeromanip.experiment.runlog import TEXT_COLUMNS, RunLog
+    from aeromanip.experiment.runner import summarize
+    from aeromanip.sweep.results import FIXED_COLUMNS, TASK_COLUMNS, flatten
+
+    known = {*FIXED_COLUMNS, *TASK_COLUMNS, *plan.spec.keys}
+    sims: set[str] = set()
+    for run in plan.example.values():
+        sc = build_run(plan.data, plan.base_dir, run.overrides, run.variant)
+        if sc.sim in sims:
+            continue
+        sims.add(sc.sim)
+        columns = log_columns(sc, make_simulator(sc))
+        row = {c: ["ok"] if c in TEXT_COLUMNS else [0.0] for c in columns}
+        known |= set(flatten(summarize(sc, RunLog(row, run_meta(sc)))))
+    tables = {k.split(".")[0] for k in known if "." in k}
+    for name in names:
+        table, dot, _ = name.partition(".")
+        if name not in known and not (dot and table in tables):
+            shown = ", ".join(sorted(k for k in known if k.endswith(("_m", "_ms", "_mean")))[:8])
+            raise ConfigError(f"{option} {name}: not a column of results.csv (e.g. {shown})")

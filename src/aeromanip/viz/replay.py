@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from aeromanip.errors import ConfigError
+from aeromanip.experiment.rundir import check_file_writable
 from aeromanip.viz.render import Panel
 from aeromanip.viz.runs import SavedRun, find_runs
 from aeromanip.viz.video import FrameWriter, check_gif, check_size, output_kind
@@ -29,6 +30,7 @@ MAX_AUTO_VIDEO_S = 90.0  # [s] longest video the default speed gives
 NICE_SPEEDS = (1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0)
 MAX_SPEED = 1e4
 MAX_FPS = 120.0
+MAX_FRAMES = 216_000  # two hours at 30 frames/s
 VIDEO_FILE = "replay.mp4"
 
 
@@ -45,6 +47,7 @@ class ReplayResult:
     video_s: float
     start_s: float
     wall_s: float
+    problems: tuple[str, ...] = ()  # what is damaged in the runs rendered (one line each)
 
     @property
     def render_fps(self) -> float:
@@ -103,6 +106,7 @@ def replay(
     kind = output_kind(out)
     if at is not None and kind != "png":
         raise ConfigError(f"--at: picks the time of a .png still; --out is {out}")
+    check_file_writable(out)
     runs = find_runs(Path(run_dir))
     t0 = min(float(r.traj.t[0]) for r in runs)
     t1 = max(float(r.traj.t[-1]) for r in runs)
@@ -111,6 +115,11 @@ def replay(
     if kind == "png":
         times = np.array([_still_time(at, t0, t1)])
     else:
+        if (t1 - t0) * fps / speed > MAX_FRAMES:
+            raise ConfigError(
+                f"--speed: {speed:g} gives more than {MAX_FRAMES} frames for {t1 - t0:g} s of "
+                f"run at {fps:g} fps; use --speed {(t1 - t0) * fps / MAX_FRAMES:.3g} or more"
+            )
         times = frame_times(t0, t1, fps, speed)
         if kind == "gif":
             check_gif(len(times), size[0] * len(runs), size[1])
@@ -160,6 +169,7 @@ def _render(
         len(times) / fps,
         float(times[0]),
         time.perf_counter() - start,
+        tuple(p for r in runs for p in r.problems),
     )
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from aeromanip.errors import ConfigError
-from aeromanip.experiment.runlog import LOG_FILE, SUMMARY_FILE, RunLog, bound_pair
+from aeromanip.experiment.runlog import LOG_FILE, META_FILE, SUMMARY_FILE, RunLog, bound_pair
 
 MJCF_FILE = "robot.xml"
 URDF_FILE = "robot.urdf"
@@ -107,6 +107,7 @@ class SavedRun:
     traj: Trajectory
     mjcf: str
     urdf: str | None
+    problems: tuple[str, ...] = ()  # what is damaged (a log cut short, no meta.json)
 
 
 def load_run(path: Path) -> SavedRun:
@@ -129,7 +130,23 @@ def load_run(path: Path) -> SavedRun:
         traj=Trajectory.from_log(log),
         mjcf=xml.read_text(),
         urdf=urdf.read_text() if urdf.is_file() else None,
+        problems=damage(path, len(log)),
     )
+
+
+def damage(path: Path, rows: int) -> tuple[str, ...]:
+    """What is wrong with a run directory that still loads: its ``log.csv`` cut short
+    (a last row without its line end: dropped) or no ``meta.json``."""
+    found = []
+    with (path / LOG_FILE).open("rb") as f:
+        f.seek(0, 2)
+        if f.tell() > 0:
+            f.seek(-1, 2)
+            if f.read(1) != b"\n":
+                found.append(f"{path / LOG_FILE}: its last row is cut short (dropped; {rows} kept)")
+    if not (path / META_FILE).is_file():
+        found.append(f"{path}: no {META_FILE} (the run's bounds and names are missing)")
+    return tuple(found)
 
 
 def run_dirs(root: Path) -> list[Path]:
