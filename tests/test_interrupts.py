@@ -267,3 +267,22 @@ def test_sigint_during_a_c_build_leaves_no_compiler_and_no_build_directory(
     finally:
         stop(p)
         kill_compilers_of(cache)
+
+
+def test_after_the_last_file_signals_are_ignored_until_the_process_ends():
+    """Once the command has written its last file, SIGINT and SIGTERM are ignored (not
+    handled by Python): CPython resets its own handlers to the default while it shuts
+    down, so a signal in that window would kill the ending process without a word
+    (exit -2, no line), as a loaded machine showed."""
+    code = (
+        "import signal, sys\n"
+        "from aeromanip.cli import main\n"
+        "sys.argv = ['aeromanip', 'list']\n"
+        "rc = main()\n"
+        "both = (signal.SIGINT, signal.SIGTERM)\n"
+        "ignored = [signal.getsignal(s) == signal.SIG_IGN for s in both]\n"
+        "print(rc, ignored)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "0 [True, True]"

@@ -42,10 +42,6 @@ def _handler(signum: int, frame: FrameType | None) -> None:
         raise RunInterrupted(signum)
 
 
-def _remember(signum: int, frame: FrameType | None) -> None:
-    _pending.append(signum)
-
-
 @contextlib.contextmanager
 def deferred() -> Iterator[None]:
     """A block a signal does not break: it is raised when the block ends."""
@@ -77,7 +73,9 @@ def clear() -> None:
 def stop_on_signals(keep: bool = False) -> Iterator[None]:
     """Within the block, SIGINT and SIGTERM raise ``RunInterrupted`` (main thread only;
     elsewhere the block changes nothing). The previous handlers are restored after, or,
-    with ``keep`` (a process about to exit), signals are only remembered from then on."""
+    with ``keep`` (a process about to exit: its last file is written), signals are
+    ignored from then on: a Python handler would be reset to the default while the
+    interpreter shuts down, and a signal then would kill the process without a word."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -89,7 +87,7 @@ def stop_on_signals(keep: bool = False) -> Iterator[None]:
     finally:
         sys.unraisablehook = previous_hook
         for s, h in previous.items():
-            signal.signal(s, _remember if keep else h)
+            signal.signal(s, signal.SIG_IGN if keep else h)
 
 
 def _quiet_unraisable(hook: Callable[[Any], None]) -> Callable[[Any], None]:
