@@ -4,6 +4,9 @@ PX4-like inner loop taking velocity + yaw-rate setpoints, ``physics.setpoint =
 
 Every ``tick`` (the physics' outer-loop period, 10 ms by default) it reads what arrived
 (setpoints, ``COMMAND_LONG``: arm, mode, actuators; each answered by a ``COMMAND_ACK``),
+reads ``SET_POSITION_TARGET_LOCAL_NED`` as PX4 does (``setpoints``: every mask and frame
+PX4 takes; a refused one is a STATUSTEXT with PX4's words) and flies the last accepted
+one through its position and yaw loops,
 lets ``Vehicle`` decide what to fly and advances the physics by the tick. It sends
 ``LOCAL_POSITION_NED`` + ``ATTITUDE`` + the joints (``NAMED_VALUE_FLOAT``) at ``state_hz``
 (with the physics' measurement noise: ``[physics] noise``), a ``HEARTBEAT`` at
@@ -24,18 +27,17 @@ import numpy as np
 from aeromanip.experiment.closed_loop import RowMaker, log_columns
 from aeromanip.experiment.scenario import Scenario
 from aeromanip.interrupts import raise_if_interrupted
-from aeromanip.mavlink import frames
+from aeromanip.mavlink import frames, setpoints
 from aeromanip.mavlink.arm import MAV_CMD_DO_SET_ACTUATOR, actuator_to_joint, joint_name
 from aeromanip.mavlink.protocol import (
     MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
     MAV_MODE_FLAG_SAFETY_ARMED,
     MODES,
-    VELOCITY_YAW_RATE,
     custom_mode,
     load_mavutil,
     open_link,
 )
-from aeromanip.mavlink.vehicle import DENIED, Vehicle
+from aeromanip.mavlink.vehicle import DENIED, Event, Vehicle
 from aeromanip.nmpc.controller import Command
 from aeromanip.sim.mjcf import FREE_JOINT
 from aeromanip.sim.physics import PhysicsSimulator
@@ -45,6 +47,8 @@ HEARTBEAT_HZ = 2.0  # [Hz]
 TRUTH_HZ = 20.0  # [Hz] truth-log rows
 MAV_CMD_COMPONENT_ARM_DISARM = 400
 MAV_CMD_DO_SET_MODE = 176
+SYSTEM_ID = 1  # this vehicle's MAVLink system id (component 1: the autopilot)
+REFUSAL_EVERY_S = 1.0  # [s] a refusal's reason is said at most this often
 TRUTH_COLUMNS = ("wall_time", "t_mission", "vx", "vy", "vz", "speed", "armed")
 
 Row = dict[str, Any]
@@ -54,7 +58,7 @@ class SitlAutopilot:
     """The SITL vehicle of scenario ``sc`` on link ``url`` (module docstring)."""
 
     def __init__(self, sc: Scenario, url: str, state_hz: float = STATE_HZ) -> None:
-        self.conn = open_link(url, 1, 1)  # first: a link that cannot open costs nothing
+        self.conn = open_link(url, SYSTEM_ID, 1)  # first: a link that cannot open costs nothing
         self.m = load_mavutil().mavlink
         self.sc = sc
         # PX4-like: velocity + yaw-rate set-points; the arm's targets are angles (ramps)
@@ -76,6 +80,8 @@ class SitlAutopilot:
         self.overruns = 0
         self._u = np.zeros(sc.robot.nx)
         self._events_seen = 0
+        self._setpoint: setpoints.Setpoint | None = None  # the last one accepted
+        self._refused: dict[str, float] = {}  # reason -> when it was last said [s]
 
     def run(self, sink: Callable[[Row], None], max_time_s: float | None = None) -> None:
         """Fly in real time until ``max_time_s`` [s] (or a signal: ``RunInterrupted``)."""
@@ -101,6 +107,8 @@ class SitlAutopilot:
                 start -= left
 
     def _step(self) -> None:
+        if self._setpoint is not None and self.vehicle.mode == "offboard":
+            self.vehicle.steer(*self._flown(self._setpoint))  # its loops, at every tick
         x = self.sim.true_state()
         speed = math.sqrt(sum(v * v for v in self._vel.tolist()))
         u, q0 = self.vehicle.command(self.t, x, speed)
@@ -118,11 +126,42 @@ class SitlAutopilot:
                 self._on_command(msg)
 
     def _on_setpoint(self, msg: Any) -> None:
-        if msg.type_mask != VELOCITY_YAW_RATE or msg.coordinate_frame != 1:
-            return  # this SITL flies velocity + yaw rate in MAV_FRAME_LOCAL_NED only
-        velocity = frames.ned_to_enu((msg.vx, msg.vy, msg.vz))
-        rate = frames.yaw_rate_ned_to_enu(msg.yaw_rate)
-        self.vehicle.on_setpoint(self.t, velocity, rate, int(msg.time_boot_ms))
+        """A ``SET_POSITION_TARGET_LOCAL_NED``, read as PX4 does (``setpoints``): kept and
+        flown from now on, or refused with a STATUSTEXT and ignored."""
+        if msg.target_system not in (0, SYSTEM_ID) or msg.target_component not in (0, 1):
+            return  # not for this vehicle (PX4 drops it too)
+        position, _, yaw = self._pose_ned()
+        sp = setpoints.from_local_ned(msg, position, yaw)
+        if isinstance(sp, str):
+            self._refuse(sp)
+            return
+        self._setpoint = sp
+        velocity, rate = self._flown(sp)
+        self.vehicle.on_setpoint(self.t, velocity, rate, int(msg.time_boot_ms) & 0xFFFFFFFF)
+
+    def _pose_ned(self) -> tuple[setpoints.Vec3, setpoints.Vec3, float]:
+        """The vehicle's true position [m], velocity [m/s] and yaw [rad], NED."""
+        x, spec = self.sim.true_state(), self.sc.robot
+        pose = {"x": 0.0, "y": 0.0, "z": 0.0, "yaw": 0.0} | dict(
+            zip(spec.platform.dofs, x[: spec.n_platform].tolist(), strict=True)
+        )
+        position = frames.enu_to_ned((pose["x"], pose["y"], pose["z"]))
+        return position, frames.enu_to_ned(self._vel.tolist()), frames.yaw_enu_to_ned(pose["yaw"])
+
+    def _flown(self, sp: setpoints.Setpoint) -> tuple[tuple[float, float, float], float]:
+        """The velocity [m/s, ENU] and yaw rate [rad/s, ENU] that fly ``sp`` now."""
+        position, velocity, yaw = self._pose_ned()
+        v, rate = setpoints.velocity_and_yaw_rate(sp, position, velocity, yaw, self.tick)
+        return frames.ned_to_enu(v), frames.yaw_rate_ned_to_enu(rate)
+
+    def _refuse(self, reason: str) -> None:
+        """Say why a message is ignored: a STATUSTEXT (and the SITL's stderr), once a
+        second per reason at most."""
+        if self.t - self._refused.get(reason, -math.inf) < REFUSAL_EVERY_S:
+            return
+        self._refused[reason] = self.t
+        self.conn.mav.statustext_send(self.m.MAV_SEVERITY_CRITICAL, reason.encode()[:50])
+        self.vehicle.events.append(Event(self.t, f"refused: {reason}"))
 
     def _on_command(self, msg: Any) -> None:
         v, x, cmd = self.vehicle, self.sim.true_state(), int(msg.command)

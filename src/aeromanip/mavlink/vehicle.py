@@ -78,6 +78,12 @@ class Vehicle:
         self.velocity, self.yaw_rate, self.mission_ms = velocity, yaw_rate, mission_ms
         self.last_sp = t
 
+    def steer(self, velocity: tuple[float, float, float], yaw_rate: float) -> None:
+        """Fly ``velocity`` [m/s, ENU] and ``yaw_rate`` [rad/s] from now on, for the last
+        setpoint (e.g. its position loop, re-evaluated each tick): the stream's timing
+        (``on_setpoint``) is not touched."""
+        self.velocity, self.yaw_rate = velocity, yaw_rate
+
     def on_joints(self, t: float, q: np.ndarray) -> None:
         """Joint position targets [rad] arrived."""
         q = np.asarray(q, dtype=float)
