@@ -7,12 +7,16 @@ Exports:
   registry ``TASKS`` (a scenario's ``kind``, or ``"package.module:Class"``);
 * the built-ins ``EndEffectorTracking`` (h1), ``CogAlignment`` (h2), ``CogVelocity``
   (h3), ``Manipulability`` (h4), ``ConditionNumber`` (h5), ``ControlRate`` (the
-  regulariser) and ``Posture``.
+  regulariser) and ``Posture``;
+* contact: ``ContactSpring`` (the prediction's contact model), ``SurfaceTask`` (a task
+  on a surface of the scenario) and ``NormalForce`` (``f_n - f_ref``).
 """
 
 from aeromanip.tasks.base import TASKS, Stage, Task
 from aeromanip.tasks.cog import CogAlignment, CogVelocity
+from aeromanip.tasks.contact import ContactSpring, SurfaceTask
 from aeromanip.tasks.effort import ControlRate
+from aeromanip.tasks.force import NormalForce
 from aeromanip.tasks.manipulability import ConditionNumber, Manipulability
 from aeromanip.tasks.posture import Posture
 from aeromanip.tasks.tracking import EndEffectorTracking
@@ -22,10 +26,13 @@ __all__ = [
     "CogAlignment",
     "CogVelocity",
     "ConditionNumber",
+    "ContactSpring",
     "ControlRate",
     "EndEffectorTracking",
     "Manipulability",
+    "NormalForce",
     "Posture",
     "Stage",
+    "SurfaceTask",
     "Task",
 ]

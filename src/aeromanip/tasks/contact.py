@@ -32,6 +32,7 @@ import casadi as ca
 import numpy as np
 
 from aeromanip.errors import ConfigError
+from aeromanip.tasks.base import Task
 
 PROBE_RADIUS = 0.01  # [m] the probe sphere's radius (the physics simulator's default)
 SMOOTHING = 1e-4  # [m] the softplus width s
@@ -39,6 +40,7 @@ MAX_STIFFNESS = 1e7  # [N/m]
 MAX_SMOOTHING = 0.01  # [m]
 MAX_OFFSET = 0.1  # [m] |rest_offset|, and the largest probe radius
 MAX_COORDINATE = 1000.0  # [m]
+Plane = tuple[Sequence[float], Sequence[float]]  # a surface's (point, outward normal)
 
 
 def _vector(value: Any, key: str) -> np.ndarray:
@@ -122,9 +124,66 @@ class ContactSpring:
         )
 
 
-def plane(point: Sequence[float] | None, normal: Sequence[float] | None, key: str) -> None:
-    """Check that a task got both or neither of ``point`` and ``normal``."""
-    if (point is None) != (normal is None):
-        raise ConfigError(
-            f"{key}: give both point and normal (or neither, to take the scenario's surface)"
-        )
+def tangents(normal: Sequence[float]) -> np.ndarray:
+    """The surface's tangents as rows (2 x 3): ``t1 = normalise(z x n)`` (horizontal;
+    ``x`` when ``n`` is vertical) and ``t2 = n x t1``, as the physics simulator's."""
+    n = np.asarray(normal, dtype=float)
+    t1 = np.cross([0.0, 0.0, 1.0], n)
+    norm = np.linalg.norm(t1)
+    t1 = np.array([1.0, 0.0, 0.0]) if norm < 1e-9 else t1 / norm
+    return np.vstack([t1, np.cross(n, t1)])
+
+
+class SurfaceTask(Task):
+    """A task about one flat surface: given by ``point`` and ``normal`` [m] (world frame),
+    or, when both are ``None``, the scenario's ``[[physics.surfaces]]`` entry of index
+    ``surface`` (0: the first; ``use_surface``), so that a surface is stated once."""
+
+    surface: int = 0
+    point: tuple[float, float, float] | None = None
+    normal: tuple[float, float, float] | None = None
+
+    def _set_surface(
+        self, surface: int, point: Sequence[float] | None, normal: Sequence[float] | None
+    ) -> None:
+        if (point is None) != (normal is None):
+            raise ConfigError(
+                f"{self.name}: give both point and normal, or neither (the scenario's "
+                f"[[physics.surfaces]] entry of index surface = {surface})"
+            )
+        if isinstance(surface, bool) or not isinstance(surface, int) or surface < 0:
+            raise ConfigError(f"{self.name}.surface: must be an integer >= 0, got {surface!r}")
+        self.surface = surface
+        if point is not None and normal is not None:
+            self.use_surface(point, normal)
+
+    def use_surface(self, point: Sequence[float], normal: Sequence[float]) -> None:
+        """Set the surface (checked; the normal normalised)."""
+        p = _vector(point, f"{self.name}.point")
+        n = _vector(normal, f"{self.name}.normal")
+        if np.linalg.norm(n) < 1e-9:
+            raise ConfigError(f"{self.name}.normal: must not be zero, got {list(normal)}")
+        self.point = tuple(p.tolist())  # type: ignore[assignment]
+        self.normal = tuple((n / np.linalg.norm(n)).tolist())  # type: ignore[assignment]
+
+    def use_scenario(self, planes: Sequence[Plane], probe_radius: float) -> None:
+        """Take the scenario's surface of index ``surface`` from ``planes`` ((point,
+        normal) of each ``[[physics.surfaces]]`` entry) unless a surface was given, and its
+        probe's radius [m] (``physics.probe_radius``) where the task uses it."""
+        if self.point is None:
+            if self.surface >= len(planes):
+                raise ConfigError(
+                    f"{self.name}.surface: {self.surface}, but the scenario has "
+                    f"{len(planes)} [[physics.surfaces]] (indices from 0); or give point "
+                    "and normal"
+                )
+            self.use_surface(*planes[self.surface])
+
+    def plane(self) -> tuple[np.ndarray, np.ndarray]:
+        """The surface's ``point`` and unit ``normal``; an error if none was given."""
+        if self.point is None or self.normal is None:
+            raise ConfigError(
+                f"{self.name}: no surface (give point and normal, or a [[physics.surfaces]] "
+                f"entry of index {self.surface} in the scenario)"
+            )
+        return np.array(self.point), np.array(self.normal)
