@@ -9,7 +9,8 @@ Exports:
   (h3), ``Manipulability`` (h4), ``ConditionNumber`` (h5), ``ControlRate`` (the
   regulariser) and ``Posture``;
 * contact: ``ContactSpring`` (the prediction's contact model), ``SurfaceTask`` (a task
-  on a surface of the scenario) and ``NormalForce`` (``f_n - f_ref``).
+  on a surface of the scenario), ``NormalForce`` (``f_n - f_ref``) and
+  ``SurfaceTracking`` (the EE error in the surface's plane).
 """
 
 from aeromanip.tasks.base import TASKS, Stage, Task
@@ -19,6 +20,7 @@ from aeromanip.tasks.effort import ControlRate
 from aeromanip.tasks.force import NormalForce
 from aeromanip.tasks.manipulability import ConditionNumber, Manipulability
 from aeromanip.tasks.posture import Posture
+from aeromanip.tasks.surface_tracking import SurfaceTracking
 from aeromanip.tasks.tracking import EndEffectorTracking
 
 __all__ = [
@@ -34,5 +36,6 @@ __all__ = [
     "Posture",
     "Stage",
     "SurfaceTask",
+    "SurfaceTracking",
     "Task",
 ]
