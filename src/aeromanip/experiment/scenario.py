@@ -60,7 +60,9 @@ from aeromanip.references import Reference, reference_from_table
 from aeromanip.robot.loader import robot_from_table
 from aeromanip.robot.spec import RobotSpec
 from aeromanip.sim.base import SIMULATORS
-from aeromanip.tasks import TASKS, EndEffectorTracking
+from aeromanip.sim.contact import PROBE_RADIUS, read_probe_radius, read_surfaces
+from aeromanip.tasks import TASKS, EndEffectorTracking, SurfaceTask
+from aeromanip.tasks.contact import Plane
 
 __all__ = ["Scenario", "build_scenario", "builtin_scenarios", "load_scenarios"]
 
@@ -246,9 +248,21 @@ def _weight(tt: Table, key: str, default: Any) -> Any:
     return tt.float(key) if key in tt.data else v
 
 
+def _scenario_surfaces(t: Table) -> tuple[list[Plane], float]:
+    """The (point, normal) of each ``[[physics.surfaces]]`` entry (checked) and the probe's
+    radius [m], for tasks on a surface (read again with the simulator's options)."""
+    physics = t.data.get("physics", {})
+    if not isinstance(physics, dict):
+        return [], PROBE_RADIUS
+    surfaces = read_surfaces(physics.get("surfaces", []))
+    radius = read_probe_radius(physics.get("probe_radius", PROBE_RADIUS))
+    return [(s.point, s.normal) for s in surfaces], radius
+
+
 def _tasks(t: Table, problem: Problem, reference: Reference) -> str:
     """Add the ``[tasks.NAME]`` tables to ``problem``; return the tracked coordinates."""
     tracked = "xyz"
+    planes: tuple[list[Plane], float] | None = None
     tasks_t = t.table("tasks")
     if not tasks_t.data:
         raise ConfigError("tasks: the scenario needs at least one task")
@@ -263,6 +277,12 @@ def _tasks(t: Table, problem: Problem, reference: Reference) -> str:
         task = cls.from_table(tt, reference)
         if isinstance(task, EndEffectorTracking):
             tracked = task.tracked
+        if isinstance(task, SurfaceTask):
+            planes = planes or _scenario_surfaces(t)
+            try:
+                task.use_scenario(*planes)
+            except ConfigError as e:
+                raise ConfigError(f"tasks.{task_name}: {e}") from None
         tt.done()
         problem.add_task(task, weight, terminal, level, name=task_name)
     tasks_t.done()

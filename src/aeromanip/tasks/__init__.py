@@ -7,14 +7,20 @@ Exports:
   registry ``TASKS`` (a scenario's ``kind``, or ``"package.module:Class"``);
 * the built-ins ``EndEffectorTracking`` (h1), ``CogAlignment`` (h2), ``CogVelocity``
   (h3), ``Manipulability`` (h4), ``ConditionNumber`` (h5), ``ControlRate`` (the
-  regulariser) and ``Posture``.
+  regulariser) and ``Posture``;
+* contact: ``ContactSpring`` (the prediction's contact model), ``SurfaceTask`` (a task
+  on a surface of the scenario), ``NormalForce`` (``f_n - f_ref``) and
+  ``SurfaceTracking`` (the EE error in the surface's plane).
 """
 
 from aeromanip.tasks.base import TASKS, Stage, Task
 from aeromanip.tasks.cog import CogAlignment, CogVelocity
+from aeromanip.tasks.contact import ContactSpring, SurfaceTask
 from aeromanip.tasks.effort import ControlRate
+from aeromanip.tasks.force import NormalForce
 from aeromanip.tasks.manipulability import ConditionNumber, Manipulability
 from aeromanip.tasks.posture import Posture
+from aeromanip.tasks.surface_tracking import SurfaceTracking
 from aeromanip.tasks.tracking import EndEffectorTracking
 
 __all__ = [
@@ -22,10 +28,14 @@ __all__ = [
     "CogAlignment",
     "CogVelocity",
     "ConditionNumber",
+    "ContactSpring",
     "ControlRate",
     "EndEffectorTracking",
     "Manipulability",
+    "NormalForce",
     "Posture",
     "Stage",
+    "SurfaceTask",
+    "SurfaceTracking",
     "Task",
 ]
