@@ -1,18 +1,21 @@
 """Offboard setpoints as PX4 reads them, and how the SITL flies them.
 
 ``from_local_ned`` follows PX4's ``MavlinkReceiver::handle_message_set_position_target_
-local_ned`` (``src/modules/mavlink/mavlink_receiver.cpp``): every field whose
-``type_mask`` bit is set is NaN (not set), and so is every non-finite value (PX4 decides
-which controls are on by ``PX4_ISFINITE``); the frame turns the rest into PX4's local
-NED ``trajectory_setpoint`` (position, velocity, acceleration, yaw, yaw rate);
-``FORCE_SET`` with an acceleration, an unknown frame, or nothing finite left are refused
-with the reason (PX4 logs the first two as critical messages and drops the third).
+local_ned`` (``src/modules/mavlink/mavlink_receiver.cpp`` L1029-1146 at PX4 commit
+161b530): a field whose ``type_mask`` bit is set is NaN, NaN means "not set"; only
+``MAV_FRAME_LOCAL_NED`` and ``MAV_FRAME_BODY_NED`` are taken (in BODY_NED the position is
+never used, the velocity turns with the heading and the acceleration with the attitude,
+each all or nothing, and the yaw stays absolute); a ``FORCE_SET`` acceleration, another
+frame, or no position, velocity or acceleration at all are refused with PX4's critical
+messages. What PX4's position controller would then reject (``PositionControl::
+_inputValid``: an infinite value, an axis with nothing set, x without y) is refused here
+too, as this SITL has no later stage.
 
-``velocity_and_yaw_rate`` is the SITL's stand-in for PX4's position controller: per axis
-a position P loop (the inner loop's own gains) with the velocity as feed-forward, else the
-velocity, else the acceleration through the velocity loop, else zero; the yaw by a P loop
-with the yaw rate as feed-forward, else the yaw rate, else zero. Angles and vectors here
-are NED (north, east, down; yaw clockwise from north), as MAVLink's.
+``velocity_and_yaw_rate`` stands in for PX4's position controller (``PositionControl``):
+per axis a position P loop with the velocity as feed-forward, else the velocity, else
+the acceleration through the velocity loop; the yaw by a P loop with the yaw rate as
+feed-forward (no yaw: the heading held). Vectors and angles are NED (north, east, down;
+yaw clockwise from north), as MAVLink's.
 """
 
 from __future__ import annotations
@@ -21,10 +24,14 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
+from aeromanip.mavlink.frames import rotation_zyx
 from aeromanip.mavlink.protocol import (
     AX_IGNORE,
     AY_IGNORE,
     AZ_IGNORE,
+    MAV_FRAME_LOCAL_NED,
     VX_IGNORE,
     VY_IGNORE,
     VZ_IGNORE,
@@ -37,14 +44,11 @@ from aeromanip.mavlink.protocol import (
 from aeromanip.sim.flight_controller import FlightGains
 
 FORCE_SET = 512  # POSITION_TARGET_TYPEMASK_FORCE_SET: the acceleration is a force
-MAV_FRAME_LOCAL_NED, MAV_FRAME_LOCAL_OFFSET_NED = 1, 7
-MAV_FRAME_BODY_NED, MAV_FRAME_BODY_OFFSET_NED, MAV_FRAME_BODY_FRD = 8, 9, 12
-#: frames whose vectors turn with the vehicle's heading; their yaw is relative to it
-BODY_FRAMES = (MAV_FRAME_BODY_NED, MAV_FRAME_BODY_OFFSET_NED, MAV_FRAME_BODY_FRD)
-#: frames whose position is an offset from the vehicle's
-OFFSET_FRAMES = (MAV_FRAME_LOCAL_OFFSET_NED, MAV_FRAME_BODY_OFFSET_NED, MAV_FRAME_BODY_FRD)
-FRAMES = (MAV_FRAME_LOCAL_NED, *OFFSET_FRAMES, MAV_FRAME_BODY_NED)
+MAV_FRAME_BODY_NED = 8
 NAN3 = (math.nan, math.nan, math.nan)
+PREFIX = "SET_POSITION_TARGET_LOCAL_NED"
+#: the controller-stage refusal (PX4 says "invalid setpoints" on its console only)
+INVALID = f"{PREFIX}: invalid setpoints"
 
 Vec3 = tuple[float, float, float]
 
@@ -61,42 +65,60 @@ class Setpoint:
 
 
 def _masked(values: tuple[float, ...], mask: int, bits: tuple[int, ...]) -> Vec3:
-    """``values`` with NaN where their ``bits`` are set in ``mask`` or they are not finite."""
-    a, b, c = (
-        math.nan if mask & bit or not math.isfinite(v) else float(v)
-        for v, bit in zip(values, bits, strict=True)
-    )
+    """``values`` with NaN where their ``bits`` are set in ``mask``."""
+    a, b, c = (math.nan if mask & bit else float(v) for v, bit in zip(values, bits, strict=True))
     return a, b, c
 
 
-def _turned(v: Vec3, yaw: float) -> Vec3:
-    """``v`` from a heading-aligned frame to local NED (a rotation by ``yaw`` about down)."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    return (c * v[0] - s * v[1], s * v[0] + c * v[1], v[2])
+def _turned(v: Vec3, R: np.ndarray) -> Vec3:
+    a, b, c = (R @ np.asarray(v, dtype=float)).tolist()
+    return a, b, c
 
 
-def from_local_ned(msg: Any, position: Vec3, yaw: float) -> Setpoint | str:
-    """The setpoint of a ``SET_POSITION_TARGET_LOCAL_NED`` for a vehicle at ``position``
-    [m, NED] heading ``yaw`` [rad, NED], or why it is refused (module docstring)."""
+def _finite_any(v: Vec3) -> bool:
+    return not all(math.isnan(x) for x in v)
+
+
+def _vectors(msg: Any, mask: int, attitude: Vec3) -> tuple[Vec3, Vec3, Vec3]:
+    """Position, velocity and acceleration in local NED (PX4 L1043-1100)."""
+    vel_bits, acc_bits = (VX_IGNORE, VY_IGNORE, VZ_IGNORE), (AX_IGNORE, AY_IGNORE, AZ_IGNORE)
+    vel = _masked((msg.vx, msg.vy, msg.vz), mask, vel_bits)
+    acc = _masked((msg.afx, msg.afy, msg.afz), mask, acc_bits)
+    if int(msg.coordinate_frame) == MAV_FRAME_LOCAL_NED:
+        return _masked((msg.x, msg.y, msg.z), mask, (X_IGNORE, Y_IGNORE, Z_IGNORE)), vel, acc
+    roll, pitch, yaw = attitude  # BODY_NED: each vector all or nothing, no position
+    vel = NAN3 if mask & sum(vel_bits) else _turned(vel, rotation_zyx(0.0, 0.0, yaw))
+    acc = NAN3 if mask & sum(acc_bits) else _turned(acc, rotation_zyx(roll, pitch, yaw))
+    return NAN3, vel, acc
+
+
+def _controller_refuses(pos: Vec3, vel: Vec3, acc: Vec3, yaw: float, rate: float) -> bool:
+    """What PX4's ``PositionControl::_inputValid`` rejects: an infinite value, an axis with
+    no finite position, velocity or acceleration, or x set without y (or y without x)."""
+    values = (*pos, *vel, *acc, yaw, rate)
+    if any(math.isinf(v) for v in values):
+        return True
+    if not all(any(math.isfinite(v[i]) for v in (pos, vel, acc)) for i in range(3)):
+        return True
+    return any(math.isfinite(v[0]) != math.isfinite(v[1]) for v in (pos, vel, acc))
+
+
+def from_local_ned(msg: Any, attitude: Vec3) -> Setpoint | str:
+    """The setpoint of a ``SET_POSITION_TARGET_LOCAL_NED`` for a vehicle at ``attitude``
+    (roll, pitch, yaw [rad], NED), or why it is refused (module docstring)."""
     mask, frame = int(msg.type_mask), int(msg.coordinate_frame)
-    if frame not in FRAMES:
-        return f"SET_POSITION_TARGET_LOCAL_NED coordinate frame {frame} unsupported"
-    pos = _masked((msg.x, msg.y, msg.z), mask, (X_IGNORE, Y_IGNORE, Z_IGNORE))
-    vel = _masked((msg.vx, msg.vy, msg.vz), mask, (VX_IGNORE, VY_IGNORE, VZ_IGNORE))
-    acc = _masked((msg.afx, msg.afy, msg.afz), mask, (AX_IGNORE, AY_IGNORE, AZ_IGNORE))
-    yaw_sp = math.nan if mask & YAW_IGNORE or not math.isfinite(msg.yaw) else float(msg.yaw)
-    rate = msg.yaw_rate
-    yaw_rate = math.nan if mask & YAW_RATE_IGNORE or not math.isfinite(rate) else float(rate)
-    if any(map(math.isfinite, acc)) and mask & FORCE_SET:
-        return "SET_POSITION_TARGET_LOCAL_NED force not supported"
-    if not any(map(math.isfinite, (*pos, *vel, *acc))):
-        return "SET_POSITION_TARGET_LOCAL_NED: no finite position, velocity or acceleration"
-    if frame in BODY_FRAMES:
-        pos, vel, acc = _turned(pos, yaw), _turned(vel, yaw), _turned(acc, yaw)
-        yaw_sp = yaw + yaw_sp  # NaN stays NaN
-    if frame in OFFSET_FRAMES:
-        pos = (pos[0] + position[0], pos[1] + position[1], pos[2] + position[2])
-    return Setpoint(pos, vel, acc, yaw_sp, yaw_rate)
+    if frame not in (MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_NED):
+        return f"{PREFIX} coordinate frame {frame} unsupported"
+    pos, vel, acc = _vectors(msg, mask, attitude)
+    yaw = math.nan if mask & YAW_IGNORE else float(msg.yaw)
+    rate = math.nan if mask & YAW_RATE_IGNORE else float(msg.yaw_rate)
+    if _finite_any(acc) and mask & FORCE_SET:
+        return f"{PREFIX} force not supported"
+    if not (_finite_any(pos) or _finite_any(vel) or _finite_any(acc)):
+        return f"{PREFIX} invalid"
+    if _controller_refuses(pos, vel, acc, yaw, rate):
+        return INVALID
+    return Setpoint(pos, vel, acc, yaw, rate)
 
 
 def velocity_and_yaw_rate(
@@ -120,10 +142,9 @@ def velocity_and_yaw_rate(
             out.append(v)
         elif math.isfinite(a):
             out.append(velocity[i] + a * dt)
-        else:
+        else:  # not flown: from_local_ned refuses such setpoints
             out.append(0.0)
-    feed = sp.yaw_rate if math.isfinite(sp.yaw_rate) else 0.0
-    rate = feed
+    rate = sp.yaw_rate if math.isfinite(sp.yaw_rate) else 0.0
     if math.isfinite(sp.yaw):
-        rate = g.att_p_yaw * math.remainder(sp.yaw - yaw, 2.0 * math.pi) + feed
+        rate += g.att_p_yaw * math.remainder(sp.yaw - yaw, 2.0 * math.pi)
     return (out[0], out[1], out[2]), rate

@@ -127,13 +127,17 @@ class SitlAutopilot:
 
     def _on_setpoint(self, msg: Any) -> None:
         """A ``SET_POSITION_TARGET_LOCAL_NED``, read as PX4 does (``setpoints``): kept and
-        flown from now on, or refused with a STATUSTEXT and ignored."""
+        flown from now on, or refused with a STATUSTEXT and ignored (not an offboard
+        signal: the last accepted setpoint flies on until the offboard loss timeout)."""
         if msg.target_system not in (0, SYSTEM_ID) or msg.target_component not in (0, 1):
             return  # not for this vehicle (PX4 drops it too)
-        position, _, yaw = self._pose_ned()
-        sp = setpoints.from_local_ned(msg, position, yaw)
+        extras = self.sim.extras()
+        _, _, yaw = self._pose_ned()
+        roll, pitch, _ = frames.attitude_enu_to_ned(extras["roll"], extras["pitch"], 0.0)
+        sp = setpoints.from_local_ned(msg, (roll, pitch, yaw))
         if isinstance(sp, str):
-            self._refuse(sp)
+            severity = self.m.MAV_SEVERITY_WARNING if sp == setpoints.INVALID else None
+            self._refuse(sp, severity)
             return
         self._setpoint = sp
         velocity, rate = self._flown(sp)
@@ -154,13 +158,14 @@ class SitlAutopilot:
         v, rate = setpoints.velocity_and_yaw_rate(sp, position, velocity, yaw, self.tick)
         return frames.ned_to_enu(v), frames.yaw_rate_ned_to_enu(rate)
 
-    def _refuse(self, reason: str) -> None:
-        """Say why a message is ignored: a STATUSTEXT (and the SITL's stderr), once a
-        second per reason at most."""
+    def _refuse(self, reason: str, severity: int | None = None) -> None:
+        """Say why a message is ignored: a STATUSTEXT (critical unless ``severity``; and
+        the SITL's stderr), once a second per reason at most."""
         if self.t - self._refused.get(reason, -math.inf) < REFUSAL_EVERY_S:
             return
         self._refused[reason] = self.t
-        self.conn.mav.statustext_send(self.m.MAV_SEVERITY_CRITICAL, reason.encode()[:50])
+        level = self.m.MAV_SEVERITY_CRITICAL if severity is None else severity
+        self.conn.mav.statustext_send(level, reason.encode()[:50])
         self.vehicle.events.append(Event(self.t, f"refused: {reason}"))
 
     def _on_command(self, msg: Any) -> None:
