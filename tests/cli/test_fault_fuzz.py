@@ -25,7 +25,6 @@ import importlib.util
 import json
 import os
 import re
-import signal
 import socket
 import threading
 import time
@@ -34,41 +33,17 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import aeromanip.experiment.logwriter as logwriter
 from aeromanip.cli import main
 from aeromanip.errors import ExitCode
 from aeromanip.experiment.runlog import RunLog
+from fuzzing import FUZZ, CallTimedOut, watchdog
 
-FUZZ = settings(
-    derandomize=True,
-    database=None,
-    deadline=None,
-    print_blob=False,
-    suppress_health_check=[HealthCheck.function_scoped_fixture],
-)
 CALL_LIMIT_S = 20.0  # [s] one refused command (normally < 0.1 s; a probe times out in 5)
 RUN_LIMIT_S = 120.0  # [s] one short run with a refused write (normally ~1 s)
-
-
-class CallTimedOut(BaseException):
-    """Raised by the watchdog in a call that took too long (a hang)."""
-
-
-@contextlib.contextmanager
-def watchdog(limit_s: float) -> Iterator[None]:
-    def fire(signum: int, frame: object) -> None:
-        raise CallTimedOut(f"still running after {limit_s:g} s")
-
-    previous = signal.signal(signal.SIGALRM, fire)
-    signal.setitimer(signal.ITIMER_REAL, limit_s)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 def call(argv: list[str], capsys: Any, limit_s: float = CALL_LIMIT_S) -> tuple[int, str, str]:

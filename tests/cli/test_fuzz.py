@@ -22,7 +22,6 @@ with ``@example`` so that they are always tried.
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import csv
 import datetime as dt
@@ -31,7 +30,6 @@ import json
 import math
 import os
 import re
-import signal
 import tempfile
 import time
 import tomllib
@@ -43,29 +41,20 @@ from typing import Any
 
 import pytest
 import tomli_w
-from hypothesis import HealthCheck, assume, configuration, example, given, settings
+from hypothesis import assume, configuration, example, given, settings
 from hypothesis import strategies as st
 
 from aeromanip.cli import main
 from aeromanip.experiment.runlog import contract_columns
 from aeromanip.robot.spec import reserved_names
+from fuzzing import FUZZ, CallTimedOut, watchdog
 
 SCENARIOS = ("planar", "waypoints", "flight", "flight-cog", "waypoints-unbounded")
 CHECK_LIMIT_S = 10.0  # [s] one `run --check` (normally ~30 ms)
 PLOT_LIMIT_S = 30.0  # [s] one `plot DIR` (normally < 2 s)
 RUN_LIMIT_S = 120.0  # [s] one real run of one control period (normally < 5 s)
 
-# hypothesis' own deadline is per example and flaky on a loaded machine: the watchdog and
-# the limits above bound each call instead. No database: nothing is written outside tmp.
-# function_scoped_fixture: `tmp_path` and `capsys` are shared by the examples on purpose;
-# each example writes into its own fresh sub-directory and reads (and so clears) capsys.
-FUZZ = settings(
-    derandomize=True,
-    database=None,
-    deadline=None,
-    print_blob=False,
-    suppress_health_check=[HealthCheck.function_scoped_fixture],
-)
+# the limits above bound each call (the watchdog; hypothesis' settings: fuzzing.FUZZ)
 
 # characters for generated text: printable ASCII, control characters, a newline, a BOM,
 # a line separator and non-ASCII letters (an explicit alphabet: no unicode tables needed)
@@ -205,26 +194,6 @@ def override_keys() -> st.SearchStrategy[str]:
 
 
 # ----------------------------------------------------------------------- the rule
-
-
-class CallTimedOut(BaseException):
-    """Raised by the watchdog in a call that took too long (a hang)."""
-
-
-@contextlib.contextmanager
-def watchdog(limit_s: float) -> Iterator[None]:
-    """Raise ``CallTimedOut`` in the block after ``limit_s`` seconds (main thread)."""
-
-    def fire(signum: int, frame: object) -> None:
-        raise CallTimedOut(f"still running after {limit_s:g} s")
-
-    previous = signal.signal(signal.SIGALRM, fire)
-    signal.setitimer(signal.ITIMER_REAL, limit_s)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 # warnings a user of the command line does not see (Python's default filters)

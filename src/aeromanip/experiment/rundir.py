@@ -36,12 +36,18 @@ def check_writable(path: Path, what: str = "--out") -> None:
         parent = parent.parent
     if not parent.is_dir():
         raise ConfigError(f"{what}: {path} cannot be created: {parent} is not a directory")
-    probe = parent / f".aeromanip-probe-{os.getpid()}"
-    try:  # os.access says yes to root everywhere, even under /proc: try for real
+    _probe(parent, f"{what}: {path} cannot be created in {parent}")
+
+
+def _probe(directory: Path, refusal: str) -> None:
+    """Create and remove an entry in ``directory``, or a ``ConfigError`` ``refusal: why``
+    (``os.access`` says yes to root everywhere, even under /proc: try for real)."""
+    probe = directory / f".aeromanip-probe-{os.getpid()}"
+    try:
         probe.mkdir()
         probe.rmdir()
     except OSError as e:
-        raise ConfigError(f"{what}: {path} cannot be created in {parent}: {e.strerror}") from None
+        raise ConfigError(f"{refusal}: {e.strerror}") from None
 
 
 def check_file_writable(path: Path, what: str = "--out") -> None:
@@ -54,12 +60,7 @@ def check_file_writable(path: Path, what: str = "--out") -> None:
     if not parent.exists() or not parent.is_dir():
         check_writable(parent, what)
         return
-    probe = parent / f".aeromanip-probe-{os.getpid()}"
-    try:  # os.access says yes to root everywhere, even under /proc: try for real
-        probe.mkdir()
-        probe.rmdir()
-    except OSError as e:
-        raise ConfigError(f"{what}: {path} cannot be written in {parent}: {e.strerror}") from None
+    _probe(parent, f"{what}: {path} cannot be written in {parent}")
 
 
 class RunDirectory:
