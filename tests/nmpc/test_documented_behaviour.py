@@ -228,8 +228,9 @@ def test_guesses_start_from_the_measured_rates_which_then_decay_as_a_first_order
 
 def test_auto_qp_solver_is_dense_up_to_condense_max_horizon_then_sparse():
     opts = {**DEFAULTS, "qpsol": "auto", "condense_max_horizon": 12}
-    assert [SqpBackend.pick_qp(opts, n) for n in (1, 12, 13, 100)] == ["daqp"] * 2 + ["hpipm"] * 2
-    for named in ("daqp", "qpoases", "hpipm"):
+    picked = [SqpBackend.pick_qp(opts, n) for n in (1, 12, 13, 100)]
+    assert picked == ["daqp"] * 2 + ["riccati"] * 2
+    for named in ("daqp", "qpoases", "riccati", "hpipm"):
         assert SqpBackend.pick_qp({**opts, "qpsol": named}, 1) == named
         assert SqpBackend.pick_qp({**opts, "qpsol": named}, 100) == named
 

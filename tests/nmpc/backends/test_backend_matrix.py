@@ -28,6 +28,7 @@ OPTIONS = {
     "fatrop": {"fatrop.tol": 1e-11},
     "sqp": {"tol": 1e-11, "qpsol": "daqp"},  # condensed, dense QP
     "sqp-hpipm": {"tol": 1e-11, "qpsol": "hpipm"},  # multiple shooting, sparse QP
+    "sqp-riccati": {"tol": 1e-11, "qpsol": "riccati"},  # the same, aeromanip's QP solver
 }
 REL = 1e-6  # costs within this (relative) are the same optimum
 CASES = [(name, variant) for name in builtin_scenarios() for variant in load_scenarios(name)]
@@ -68,7 +69,7 @@ KNOWN = {  # cases that fail today, each with its reason: strict, so a fix is no
 }
 
 
-@pytest.mark.parametrize("backend", ["sqp", "sqp-hpipm", "fatrop"])
+@pytest.mark.parametrize("backend", ["sqp", "sqp-hpipm", "sqp-riccati", "fatrop"])
 @pytest.mark.parametrize(("name", "variant"), CASES, ids=[f"{n}/{v}" for n, v in CASES])
 def test_backend_reaches_an_optimum_no_worse_than_ipopts(name, variant, backend, request):
     if (name, variant, backend) in KNOWN:

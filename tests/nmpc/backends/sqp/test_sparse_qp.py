@@ -163,8 +163,8 @@ def test_the_sparse_models_hpipm_has_its_limits_and_prints_nothing(
 def test_hpipm_options_are_tried_on_hpipm_and_auto_checks_both_solvers():
     """``qpsol = "hpipm"``: its own options pass, an unknown one or a value of the wrong type
     is one line naming it; ``"auto"`` may use either QP solver (dense up to
-    ``condense_max_horizon``, sparse beyond), so without a horizon its options must suit
-    both, whatever that limit."""
+    ``condense_max_horizon``, the Riccati interior point beyond, which takes none), so
+    without a horizon its options must suit both, whatever that limit."""
     SqpBackend.check_options({"qpsol": "hpipm", "qpsol_options": {"hpipm": {"iter_max": 30}}})
     with pytest.raises(ConfigError, match=r"^solver_options\.qpsol_options: hpipm rejects "
                        r"them: Unknown option: no_such$"):  # fmt: skip
@@ -172,12 +172,14 @@ def test_hpipm_options_are_tried_on_hpipm_and_auto_checks_both_solvers():
     with pytest.raises(ConfigError, match=r"^solver_options\.qpsol_options: hpipm rejects "
                        r"them: .*OT_INT cannot be cast to OT_DICT"):  # fmt: skip
         SqpBackend.check_options({"qpsol": "hpipm", "qpsol_options": {"hpipm": 3}})
-    for horizon, own, other in ((1, "hpipm", "daqp"), (100, "daqp", "hpipm")):
-        opts = {"qpsol": "auto", "condense_max_horizon": horizon,
-                "qpsol_options": {own: {}}}  # fmt: skip
-        with pytest.raises(ConfigError, match=rf"^solver_options\.qpsol_options: {other} "
-                           rf"rejects them: Unknown option: {own}$"):  # fmt: skip
-            SqpBackend.check_options(opts)
+    opts = {"qpsol": "auto", "condense_max_horizon": 100, "qpsol_options": {"hpipm": {}}}
+    with pytest.raises(ConfigError, match=r"^solver_options\.qpsol_options: daqp "
+                       r"rejects them: Unknown option: hpipm$"):  # fmt: skip
+        SqpBackend.check_options(opts)
+    opts = {"qpsol": "auto", "condense_max_horizon": 1, "qpsol_options": {"daqp": {}}}
+    with pytest.raises(ConfigError, match=r"^solver_options\.qpsol_options: daqp: qpsol "
+                       r"'riccati' takes no options"):  # fmt: skip
+        SqpBackend.check_options(opts)
 
 
 def test_a_refused_key_inside_hpipm_options_is_named():
@@ -189,24 +191,27 @@ def test_a_refused_key_inside_hpipm_options_is_named():
         SqpBackend.check_options(opts)
 
 
-@pytest.mark.parametrize(("horizon", "taken"), [(12, False), (13, True), (50, True)])
-def test_auto_at_a_known_horizon_checks_the_qp_solver_it_picks(horizon, taken):
+@pytest.mark.parametrize("horizon", [12, 13, 50])
+def test_auto_at_a_known_horizon_checks_the_qp_solver_it_picks(horizon):
     """With the horizon known (a scenario's, or the transcription's when the backend is
-    built), ``"auto"``'s options need suit only the solver picked there: HPIPM's options
-    are taken beyond ``condense_max_horizon`` (12) and refused by DAQP up to it, in one
-    line, from the scenario file as from the API."""
-    opts = {"qpsol_options": {"hpipm": {"iter_max": 30}}}
+    built), ``"auto"``'s options need suit only the solver picked there: DAQP's options
+    are taken up to ``condense_max_horizon`` (12), and refused beyond it by the Riccati
+    interior point, which takes none, in one line, from the scenario file as from the
+    API; HPIPM's are taken where ``qpsol = "hpipm"`` names it."""
+    opts = {"qpsol_options": {"daqp": {"iter_limit": 100}}}
     sets = [f"controller.horizon={horizon}", "controller.backend='sqp'",
-            "controller.solver_options.qpsol_options={hpipm={iter_max=30}}"]  # fmt: skip
-    if taken:
+            "controller.solver_options.qpsol_options={daqp={iter_limit=100}}"]  # fmt: skip
+    if horizon <= 12:
         SqpBackend.check_options(opts, horizon)
         load_scenarios("flight", sets)
         return
-    one_line = r"^solver_options\.qpsol_options: daqp rejects them: Unknown option: hpipm$"
+    one_line = r"^solver_options\.qpsol_options: daqp: qpsol 'riccati' takes no options"
     with pytest.raises(ConfigError, match=one_line):
         SqpBackend.check_options(opts, horizon)
     with pytest.raises(ConfigError, match=one_line):
         load_scenarios("flight", sets)
+    hpipm = {"qpsol": "hpipm", "qpsol_options": {"hpipm": {"iter_max": 30}}}
+    SqpBackend.check_options(hpipm, horizon)
 
 
 def test_an_unknown_sqp_option_is_named_with_every_known_one():

@@ -15,26 +15,18 @@ same answers.
 from __future__ import annotations
 
 import ctypes
-import hashlib
-import logging
-import os
-import shutil
-import subprocess
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import casadi as ca
 import numpy as np
 
+from aeromanip.nmpc.backends.c_library import CSources, casadi_dir, entry_of, load
 from aeromanip.nmpc.backends.cache import CacheEntry
-from aeromanip.nmpc.backends.codegen import BUILD_TIMEOUT_S, cache_dir, library_of
+from aeromanip.nmpc.backends.codegen import library_of
 from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
 from aeromanip.nmpc.backends.sqp.convexify import CONVEXIFY_DECADES, EIGEN_FLOOR
 from aeromanip.nmpc.backends.sqp.dense_qp import CROSS_TOL, SCREEN_ROUNDS, SOLVERS
-
-log = logging.getLogger(__name__)
 
 HERE = Path(__file__).parent
 #: the loop's C sources (compiled together) and headers
@@ -46,7 +38,6 @@ CONSTANTS = (
     "damping_start", "damping_growth", "penalty_margin", "penalty_floor",
     "convexify_decades", "eigen_floor",
 )  # fmt: skip
-CFLAGS = ("-O2", "-fPIC", "-shared")
 #: DAQP settings the loop passes on, in ``sqp_new``'s order (NaN: DAQP's default)
 DAQP_SETTINGS = (
     "primal_tol", "dual_tol", "zero_tol", "pivot_tol", "progress_tol",
@@ -77,10 +68,6 @@ class SqpInfo(ctypes.Structure):
     ]
 
 
-def _casadi_dir() -> Path:
-    return Path(ca.__file__).parent
-
-
 def daqp_settings(qpsol_options: Mapping[str, Any]) -> np.ndarray | None:
     """The DAQP settings of ``qpsol_options`` (the Python loop's defaults first) in
     ``DAQP_SETTINGS`` order, or ``None`` if they hold anything the C loop cannot pass."""
@@ -92,49 +79,24 @@ def daqp_settings(qpsol_options: Mapping[str, Any]) -> np.ndarray | None:
     return np.array([float(given.get(k, np.nan)) for k in DAQP_SETTINGS])
 
 
+def _spec(source_dir: Path) -> CSources:
+    link = (str(casadi_dir() / "libdaqpstat.a"),)
+    return CSources("aeromanip_condensed_loop", source_dir, SOURCES, HEADERS, link,
+                    "the compiled SQP loop")  # fmt: skip
+
+
 def loop_library(source_dir: Path = HERE) -> ctypes.CDLL | None:
     """The compiled loop (built into the cache on first use from the sources in
     ``source_dir``), or ``None`` (no compiler, or the build failed: one warning)."""
-    cc = shutil.which(os.environ.get("CC", "gcc"))
-    if cc is None or os.environ.get("AEROMANIP_CODEGEN", "1") == "0":
-        return None
-    entry = loop_entry(cc, source_dir)
-    if not entry.valid():
-        with entry.locked():
-            if not entry.valid() and not _build(entry, cc, source_dir):
-                return None
-    lib = ctypes.CDLL(str(entry.lib))
-    _declare(lib)
+    lib = load(_spec(source_dir))
+    if lib is not None:
+        _declare(lib)
     return lib
 
 
 def loop_entry(cc: str, source_dir: Path = HERE) -> CacheEntry:
     """The cache entry of the loop built from the sources in ``source_dir`` by ``cc``."""
-    h = hashlib.sha256()
-    for name in (*SOURCES, *HEADERS):
-        h.update((source_dir / name).read_bytes())
-    h.update(" ".join((ca.__version__, Path(cc).name, *CFLAGS)).encode())
-    return CacheEntry(cache_dir() / f"aeromanip_condensed_loop-{h.hexdigest()[:20]}.so")
-
-
-def _build(entry: CacheEntry, cc: str, source_dir: Path) -> bool:
-    casadi = _casadi_dir()
-    with tempfile.TemporaryDirectory(prefix="build-loop-", dir=entry.lib.parent) as tmp:
-        out = Path(tmp) / entry.lib.name
-        sources = [str(source_dir / name) for name in SOURCES]
-        cmd = [cc, *CFLAGS, *sources, f"-I{casadi / 'include'}", "-o", str(out),
-               str(casadi / "libdaqpstat.a"), "-lm"]  # fmt: skip
-        try:
-            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
-        except (OSError, subprocess.TimeoutExpired) as e:
-            log.warning("codegen: building the compiled SQP loop failed (%s); Python loop", e)
-            return False
-        if proc.returncode != 0:
-            last = (proc.stderr.strip().splitlines() or ["?"])[-1]
-            log.warning("codegen: building the compiled SQP loop failed (%s); Python loop", last)
-            return False
-        entry.install(out)
-    return True
+    return entry_of(_spec(source_dir), cc)
 
 
 def _declare(lib: ctypes.CDLL) -> None:

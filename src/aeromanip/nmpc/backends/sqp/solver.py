@@ -98,8 +98,9 @@ DEFAULTS: dict[str, Any] = {
     # exact from the first shortened step or the 7th iteration of a solve on
     "hessian": "auto",
     "regularization": 1e-9,  # added to the Hessian's diagonal
-    # "auto": "daqp" up to condense_max_horizon steps, else "hpipm"; "daqp" or "qpoases":
-    # the condensed dense QP; "hpipm": the sparse multiple-shooting QP
+    # "auto": "daqp" up to condense_max_horizon steps, else "riccati"; "daqp" or
+    # "qpoases": the condensed dense QP; "riccati" (aeromanip's compiled Riccati interior
+    # point, HPIPM where it cannot be built) or "hpipm": the sparse multiple-shooting QP
     "qpsol": "auto",
     "condense_max_horizon": 12,  # steps
     "qpsol_options": {},  # extra options of the QP solver
@@ -116,6 +117,8 @@ DEFAULTS: dict[str, Any] = {
 }
 HESSIANS = ("auto", "exact", "gauss-newton")
 SEEDS = ("ipopt", "none")
+#: the sparse model's QP solvers: aeromanip's Riccati interior point, or HPIPM
+SPARSE_QP_SOLVERS = ("riccati", "hpipm")
 SEED_FLOOR = 1e-6  # [cost units] an answer within this of the promise is never re-seeded
 
 
@@ -152,7 +155,7 @@ OPTION_CHECKS: dict[str, Callable[[Any], str]] = {
     "compiled_loop": lambda v: "" if isinstance(v, bool) else "true or false",
     "hessian": _one_of(HESSIANS),
     "regularization": _number(positive=False),
-    "qpsol": _one_of(("auto", *QP_SOLVERS, "hpipm")),
+    "qpsol": _one_of(("auto", *QP_SOLVERS, *SPARSE_QP_SOLVERS)),
     "condense_max_horizon": _int_at_least(1),
     "qpsol_options": lambda v: "" if isinstance(v, Mapping) else "a table",
     "screen": _number(positive=False),
@@ -203,7 +206,7 @@ class SqpBackend(Backend):
         self.opts = self.checked_options(options, transcription.N)
         self.tr = transcription
         self.qpsol = self.pick_qp(self.opts, transcription.N)
-        if self.qpsol == "hpipm":
+        if self.qpsol in SPARSE_QP_SOLVERS:
             self.model: QpModel = SparseQpModel(transcription, self.opts)
         else:
             self.model = CondensedQpModel(transcription, {**self.opts, "qpsol": self.qpsol})
@@ -229,7 +232,7 @@ class SqpBackend(Backend):
         """The QP solver ``qpsol`` names, or for ``"auto"`` the one for ``horizon``."""
         if opts["qpsol"] != "auto":
             return str(opts["qpsol"])
-        return "daqp" if horizon <= opts["condense_max_horizon"] else "hpipm"
+        return "daqp" if horizon <= opts["condense_max_horizon"] else "riccati"
 
     @classmethod
     def checked_options(
@@ -253,9 +256,16 @@ class SqpBackend(Backend):
             if allowed:
                 raise ConfigError(f"solver_options.{key}: {opts[key]!r} is not {allowed}")
         horizons = (1, 10**6) if horizon is None else (horizon,)
-        for qpsol in {cls.pick_qp(opts, n) for n in horizons}:
+        for qpsol in dict.fromkeys(cls.pick_qp(opts, n) for n in horizons):  # in order
             if qpsol == "hpipm":
                 check_hpipm_options(opts["qpsol_options"])
+            elif qpsol == "riccati":
+                if opts["qpsol_options"]:
+                    given = ", ".join(map(str, opts["qpsol_options"]))
+                    raise ConfigError(
+                        f"solver_options.qpsol_options: {given}: qpsol 'riccati' takes no "
+                        "options (its tolerances follow solver_options.tol)"
+                    )
             else:
                 DenseQp.check_options(qpsol, opts["qpsol_options"])
         return opts

@@ -25,7 +25,13 @@ from aeromanip.nmpc.backends.base import SolveRequest
 from aeromanip.nmpc.backends.codegen import Buffered, compiled_all
 from aeromanip.nmpc.backends.sqp.convexify import convexified_blocks
 from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
-from aeromanip.nmpc.backends.sqp.hpipm import hpipm_options, hpipm_solver
+from aeromanip.nmpc.backends.sqp.hpipm import (
+    HPIPM_LIMITS,
+    hpipm_options,
+    hpipm_solver,
+    qp_tolerance,
+)
+from aeromanip.nmpc.backends.sqp.ocp_ipm import RiccatiQp
 from aeromanip.nmpc.backends.sqp.optimality import complementarity, l1
 from aeromanip.nmpc.backends.sqp.qp_model import Linearization
 from aeromanip.nmpc.transcription import COUPLING, Transcription
@@ -176,7 +182,10 @@ class SparseQpModel:
         self.A_sp = order.sparsity()
         self.a_perm = np.asarray(order.nonzeros(), dtype=int) - 1  # CCS position -> ours
         self.a_fixed = np.array(vals[: self.n_gap_entries])
+        self._row_slots()
         kind = "rti" if self.opts["rti"] else "sqp"
+        if self.opts["qpsol"] == "riccati" and self._riccati(kind):
+            return
         user = self.opts["qpsol_options"]
         own = hpipm_options(kind, user, self.opts["tol"])
         self.qp = hpipm_solver(self.H_sp, self.A_sp, own, f"{N}")
@@ -188,6 +197,34 @@ class SparseQpModel:
             if tightest == own
             else hpipm_solver(self.H_sp, self.A_sp, tightest, f"accurate_{N}")
         )
+
+    def _row_slots(self) -> None:
+        """Where each stage row of ``g`` sits among the Riccati solver's rows (``nc`` per
+        stage, the last ones used where a stage has fewer, then ``ncT``)."""
+        slots, rows = [], []
+        for k in range(self.N + 1):
+            mine = self.stage_rows[k]
+            end = k * self.nc + (self.nc if k < self.N else self.ncT)
+            slots.append(np.arange(end - len(mine), end))
+            rows.append(mine)
+        self.row_slot, self.row_src = np.concatenate(slots), np.concatenate(rows)
+
+    def _riccati(self, kind: str) -> bool:
+        """The Riccati interior point as the QP solver (and its accurate twin), at HPIPM's
+        tolerances; ``False`` where it cannot be built here (then HPIPM)."""
+        model, dims = self.tr.model, (self.N, self.nz, self.nx, self.nc, self.ncT)
+        tol, iterations = qp_tolerance(kind, self.opts["tol"]), HPIPM_LIMITS[kind][1]
+        qp = RiccatiQp.create(dims, model.A, model.B, tol, iterations)
+        if qp is None:
+            return False
+        tightest = HPIPM_LIMITS[kind][0]
+        self.qp = qp
+        self.qp_accurate = (
+            qp
+            if tightest == tol
+            else RiccatiQp.create(dims, model.A, model.B, tightest, iterations)
+        )
+        return True
 
     # -- evaluation ----------------------------------------------------------------------
     def _split(self, v: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -402,9 +439,12 @@ class SparseQpModel:
         res.d += base - v
         return res
 
-    def _qp(self, qp: Buffered, lin: Linearization, Hs: np.ndarray, HT: np.ndarray) -> QpResult:
+    def _qp(self, qp: Buffered | RiccatiQp, lin: Linearization, Hs: np.ndarray,
+            HT: np.ndarray) -> QpResult:  # fmt: skip
         """One QP with the given Hessian blocks, solved by ``qp``."""
         d = lin.data
+        if isinstance(qp, RiccatiQp):
+            return self._qp_riccati(qp, lin, Hs, HT)
         x, lam_a, lam_x, _ = qp(
             np.concatenate([Hs.transpose(0, 2, 1).ravel(), HT.T.ravel()]),
             self._a_values(lin)[self.a_perm],
@@ -417,6 +457,32 @@ class SparseQpModel:
         step = x.copy()
         ok, status = self._solved(lin, step)
         return QpResult(step, lam_a.copy(), lam_x.copy(), ok, status)
+
+    def _qp_riccati(
+        self, qp: RiccatiQp, lin: Linearization, Hs: np.ndarray, HT: np.ndarray
+    ) -> QpResult:
+        """One QP by the Riccati interior point: the blocks as ``ocp_ipm`` takes them."""
+        d, nz = lin.data, self.nz
+        lba, uba = lin.lbc - lin.c, lin.ubc - lin.c
+        n_rows = self.N * self.nc + self.ncT
+        lg, ug = np.full(n_rows, -np.inf), np.full(n_rows, np.inf)
+        lg[self.row_slot], ug[self.row_slot] = lba[self.row_src], uba[self.row_src]
+        Jc, JcT = self._blocks(lin)
+        lb, ub = d["lbw"] - d["v"], d["ubw"] - d["v"]
+        sol = qp.solve(
+            np.concatenate([Hs.ravel(), HT.ravel()]),
+            lin.grad,
+            np.ascontiguousarray(lba[self.gap_rows]),
+            np.concatenate([Jc.ravel(), JcT.ravel()]),
+            (lg, ug),
+            (lb, ub),
+            np.ascontiguousarray(lb[:nz]),  # stage 0's state: pinned
+        )
+        lam_a = np.zeros(self.ng)
+        lam_a[self.gap_rows] = sol.lam_dyn
+        lam_a[self.row_src] = sol.lam_c[self.row_slot]
+        ok, status = self._solved(lin, sol.y) if sol.usable else (False, sol.status)
+        return QpResult(sol.y, lam_a, sol.lam_y, ok, status)
 
     def _solved(self, lin: Linearization, step: np.ndarray) -> tuple[bool, str]:
         """A finite step that keeps the linearised rows and the bounds (to

@@ -1,0 +1,103 @@
+"""Hand-written C shipped with the package, built once per machine into the compile
+cache and loaded with ``ctypes``.
+
+A library is keyed by its sources' and headers' bytes, the compiler, the flags and
+CasADi's version (its headers and DAQP library may be linked in), and checked like
+every cache entry (``cache.CacheEntry``): a damaged file is rebuilt, not loaded. No
+compiler, a failed build (one warning) or, for a part that runs the generated model,
+``AEROMANIP_CODEGEN=0`` gives ``None``; the caller then runs its fallback.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+
+from aeromanip.nmpc.backends.cache import CacheEntry
+from aeromanip.nmpc.backends.codegen import BUILD_TIMEOUT_S, cache_dir
+
+log = logging.getLogger(__name__)
+
+CFLAGS = ("-O2", "-fPIC", "-shared")
+
+
+@dataclass(frozen=True)
+class CSources:
+    """A library's C sources (compiled together) and headers in ``directory``, the
+    libraries it links (paths), its purpose (for the warning on a failed build), and
+    whether ``AEROMANIP_CODEGEN=0`` (the model's Functions in-process) turns it off
+    too (a part that runs the generated model does; a solver of its own does not)."""
+
+    name: str
+    directory: Path
+    sources: Sequence[str]
+    headers: Sequence[str]
+    link: Sequence[str] = ()
+    purpose: str = "a compiled part"
+    cflags: Sequence[str] = CFLAGS
+    follows_codegen: bool = True
+
+
+def casadi_dir() -> Path:
+    """Where CasADi's wheel keeps its headers and libraries."""
+    return Path(ca.__file__).parent
+
+
+def compiler(follows_codegen: bool = True) -> str | None:
+    """The C compiler (``$CC``, else ``gcc``), or ``None`` (none, or code generation off
+    and ``follows_codegen``)."""
+    cc = shutil.which(os.environ.get("CC", "gcc"))
+    if cc is None or (follows_codegen and os.environ.get("AEROMANIP_CODEGEN", "1") == "0"):
+        return None
+    return cc
+
+
+def entry_of(spec: CSources, cc: str) -> CacheEntry:
+    """The cache entry of ``spec`` built by ``cc``."""
+    h = hashlib.sha256()
+    for name in (*spec.sources, *spec.headers):
+        h.update((spec.directory / name).read_bytes())
+    h.update(" ".join((ca.__version__, Path(cc).name, *spec.cflags, *spec.link)).encode())
+    return CacheEntry(cache_dir() / f"{spec.name}-{h.hexdigest()[:20]}.so")
+
+
+def load(spec: CSources) -> ctypes.CDLL | None:
+    """The library of ``spec`` (built into the cache on first use), or ``None``."""
+    cc = compiler(spec.follows_codegen)
+    if cc is None:
+        return None
+    entry = entry_of(spec, cc)
+    if not entry.valid():
+        with entry.locked():
+            if not entry.valid() and not _build(spec, entry, cc):
+                return None
+    return ctypes.CDLL(str(entry.lib))
+
+
+def _build(spec: CSources, entry: CacheEntry, cc: str) -> bool:
+    with tempfile.TemporaryDirectory(prefix=f"build-{spec.name}-", dir=entry.lib.parent) as tmp:
+        out = Path(tmp) / entry.lib.name
+        sources = [str(spec.directory / name) for name in spec.sources]
+        cmd = [cc, *spec.cflags, *sources, f"-I{casadi_dir() / 'include'}", "-o", str(out),
+               *spec.link, "-lm"]  # fmt: skip
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
+        except (OSError, subprocess.TimeoutExpired) as e:
+            log.warning("codegen: building %s failed (%s); Python instead", spec.purpose, e)
+            return False
+        if proc.returncode != 0:
+            last = (proc.stderr.strip().splitlines() or ["?"])[-1]
+            log.warning("codegen: building %s failed (%s); Python instead", spec.purpose, last)
+            return False
+        entry.install(out)
+    return True
