@@ -209,6 +209,12 @@ def test_the_sparse_models_qp_step_equals_hpipms(small_problem):
     np.testing.assert_allclose(ours.lam_a, hpipm.lam_a, atol=1e-5 * (1 + np.abs(hpipm.lam_a).max()))
 
 
+def test_auto_beyond_the_condensing_limit_takes_the_riccati_solver(small_problem):
+    opts = {"codegen": False, "seed": "none", "condense_max_horizon": 1}
+    model = Weighted(small_problem, "sqp", opts).solvers[0].backend.model
+    assert isinstance(model.qp, RiccatiQp)
+
+
 def test_riccati_takes_no_qp_options():
     with pytest.raises(
         ConfigError,

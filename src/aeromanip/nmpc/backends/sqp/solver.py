@@ -207,7 +207,7 @@ class SqpBackend(Backend):
         self.tr = transcription
         self.qpsol = self.pick_qp(self.opts, transcription.N)
         if self.qpsol in SPARSE_QP_SOLVERS:
-            self.model: QpModel = SparseQpModel(transcription, self.opts)
+            self.model: QpModel = SparseQpModel(transcription, {**self.opts, "qpsol": self.qpsol})
         else:
             self.model = CondensedQpModel(transcription, {**self.opts, "qpsol": self.qpsol})
         self.loop = (
