@@ -188,7 +188,7 @@ SQP_BAD_OPTIONS = [
         'qpsol="gurobi"',
         "solver_options.qpsol",
         "'gurobi'",
-        "one of ['auto', 'daqp', 'qpoases', 'hpipm']",
+        "one of ['auto', 'daqp', 'qpoases', 'riccati', 'hpipm']",
     ),
     ("tol=-1", "solver_options.tol", "-1", "a finite number >= 0"),
     ("nosuch=1", "solver_options.nosuch", "unknown sqp option", "known: max_iter"),

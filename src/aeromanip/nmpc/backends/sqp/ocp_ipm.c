@@ -31,7 +31,8 @@
  * a bounded weight 1/reg in the factorisation where two opposite bounds would have
  * their barrier's grow without bound; its fixed point is exact */
 #define EQUALITY_REG 1e-8
-#define MIN_STEP 1e-12         /* a shorter step: stalled */
+#define MIN_STEP 1e-12
+#define LAMBDA_FLOOR 1e-6 /* the bounds' multipliers start at least here */         /* a shorter step: stalled */
 #define STEP_TO_BOUNDARY 0.995 /* the fraction of the longest feasible step taken */
 
 struct OcpIpm {
@@ -210,7 +211,7 @@ static void scan(OcpIpm* s, const Data* d) {
 
 /* masks (x_0's bounds are not constraints: x_0 is pinned), start: y on x0, slacks and
  * multipliers at least `thr` */
-static void init(OcpIpm* s, const Data* d, double thr) {
+static void init(OcpIpm* s, const Data* d, double thr, double lam0) {
     int nb = s->nb_stage;
     memset(s->y, 0, sizeof(double) * (s->N + 1) * s->nv);
     memset(s->pi, 0, sizeof(double) * s->N * s->nx);
@@ -229,8 +230,8 @@ static void init(OcpIpm* s, const Data* d, double thr) {
             double v = (s->ml[j] || s->mu[j]) ? bound_value(s, Ck, k, yk, i) : 0.0;
             s->tl[j] = s->ml[j] ? fmax(v - lo, thr) : 1.0;
             s->tu[j] = s->mu[j] ? fmax(hi - v, thr) : 1.0;
-            s->ll[j] = s->ml[j] ? thr : 0.0;
-            s->lu[j] = s->mu[j] ? thr : 0.0;
+            s->ll[j] = s->ml[j] ? lam0 : 0.0;
+            s->lu[j] = s->mu[j] ? lam0 : 0.0;
         }
     }
 }
@@ -527,7 +528,12 @@ int ocp_ipm_solve(OcpIpm* s, const double* H, const double* g, const double* b,
     int iter_max = (int)settings[4];
     int N = s->N, nx = s->nx, nv = s->nv, nb = s->nb_stage, nbt = (N + 1) * nb;
     scan(s, &d);
-    init(s, &d, thr);
+    /* the bounds' multipliers start at the gradient's scale (they balance it at the
+     * optimum): an SQP's QPs near convergence start near their small multipliers */
+    double gmax = 0.0;
+    for (int i = 0; i < (N + 1) * nv; i++)
+        if (i < N * nv + nx) gmax = fmax(gmax, fabs(g[i]));
+    init(s, &d, thr, fmin(thr, fmax(gmax, LAMBDA_FLOOR)));
     double *rcl = malloc(sizeof(double) * nbt * 2), *rcu = rcl + nbt;
     int status = OCP_IPM_MAX_ITER, it = 0;
     Residuals r = residuals(s, &d);
