@@ -23,6 +23,7 @@ from aeromanip.nmpc.controller import Command, Controller
 from aeromanip.nmpc.strategies import STRATEGIES
 from aeromanip.robot.spec import PLATFORM_DOFS
 from aeromanip.sim.base import SIMULATORS, Simulator
+from aeromanip.sim.contact import read_surfaces
 
 Row = dict[str, Any]
 
@@ -76,6 +77,12 @@ def run_meta(sc: Scenario) -> dict[str, Any]:
         meta["clearance_planned"] = min(
             c.d_min for c in sc.problem.constraints if isinstance(c, Clearance)
         )
+    surfaces = sc.sim_options.get("surfaces") if sc.sim == "physics" else None
+    if surfaces:  # the contact metrics' tangents
+        meta["surface_normals"] = [
+            list(s.normal)
+            for s in read_surfaces(surfaces)  # checked when built
+        ]
     if (markers := sc.reference.markers()) is not None:
         meta["waypoints"] = np.asarray(markers).tolist()
     return meta

@@ -35,12 +35,12 @@ from aeromanip.tasks.contact_estimate import (
     TIME_CONSTANT,
     RestPointEstimator,
 )
+from aeromanip.tasks.contact_feedforward import ThrustFeedforward
 
 F_REF = 0.0  # [N] the set normal force without a schedule
 MAX_FORCE = 1000.0  # [N]
 FORCE_LIMIT_RATIO = 2.5  # default over-force limit, times the largest set force
 MIN_FORCE_LIMIT = 1.0  # [N] the default over-force limit's floor (a set force of 0)
-SLIDE_SPEED = 0.005  # [m/s] below this reference speed the friction feed-forward fades out
 
 
 def _schedule(schedule: Sequence[Sequence[float]], key: str) -> np.ndarray:
@@ -113,7 +113,7 @@ class NormalForce(SurfaceTask):
         self.stiffness, self.rest_offset, self.smoothing = stiffness, rest_offset, smoothing
         self.probe_radius = probe_radius
         self.estimate, self.feedforward = bool(estimate), bool(feedforward)
-        self.reference, self.friction = reference, float(friction)
+        self.reference = reference
         self.param_size = 2 if self.estimate else 1  # set force, and the rest-point estimate
         self._set_surface(surface, point, normal)
         ContactSpring((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), *self._spring_numbers())  # checked now
@@ -136,7 +136,7 @@ class NormalForce(SurfaceTask):
             search_speed=float(search_speed),
         )
         self.estimator: RestPointEstimator | None = None
-        self._in_contact = False
+        self._thrust = ThrustFeedforward(float(friction))
         self._t_last: float | None = None
 
     def _spring_numbers(self) -> tuple[float, float, float, float]:
@@ -185,7 +185,8 @@ class NormalForce(SurfaceTask):
     def reset(self) -> None:
         """Forget the estimate (a new run)."""
         self._estimator().reset()
-        self._in_contact, self._t_last = False, None
+        self._thrust.reset()
+        self._t_last = None
 
     def observe(
         self,
@@ -201,16 +202,21 @@ class NormalForce(SurfaceTask):
         est = self._estimator()
         force = np.asarray(wrench, dtype=float)[:3]
         normal = np.asarray(est.spring.normal)
-        self._in_contact = float(force @ normal) >= est.contact_force
+        self._thrust.feel(t, float(force @ normal) >= est.contact_force)
         dt = 0.0 if self._t_last is None else max(t - self._t_last, 0.0)
         self._t_last = t
         if self.estimate:
             est.update(np.asarray(ee, dtype=float), force, dt)
 
     def observations(self, t: float) -> dict[str, float]:
-        """Logged each step: the set force ``f_ref`` [N] at ``t``, the rest-point estimate
+        """Logged each step: the set force ``f_ref`` [N] at ``t``; with ``feedforward``
+        the normal force it balances ``f_ff`` [N] and ``contact_lost`` (1: contact felt
+        before, not for ``HOLD_S``); with ``estimate`` the rest-point estimate
         ``rest_offset`` [m] and the estimator's event (index in ``EVENTS``)."""
         out = {"f_ref": float(self.set_force(np.array([t]))[0])}
+        if self.feedforward:
+            out["f_ff"] = self._thrust.level
+            out["contact_lost"] = float(self._thrust.lost(t))
         if self.estimate:
             out["rest_offset"] = self._estimator().offset
             out["contact_event"] = float(EVENTS.index(self._estimator().event))
@@ -220,24 +226,16 @@ class NormalForce(SurfaceTask):
         self, ee_now: np.ndarray, ee_next: np.ndarray, dt: float
     ) -> np.ndarray | None:
         """The thrust [N, world] that balances the normal force planned at the plan's next
-        EE position ``ee_next`` [m] (bounded by the over-force limit) and the sliding
-        friction ``friction`` times that force along the reference's tangential velocity
-        now: a pure feed-forward (the plan's velocity or the measured friction would make
-        it answer errors, and the slide oscillates); zero unless contact is felt; ``None``
-        without ``feedforward``."""
-        if not self.feedforward:
-            return None
+        EE position ``ee_next`` [m] (bounded by the over-force limit) and the friction
+        (``tasks.contact_feedforward``); ``None`` without ``feedforward``."""
+        if not self.feedforward or self._t_last is None:
+            return None if not self.feedforward else np.zeros(3)
         est = self._estimator()
         n = np.asarray(est.spring.normal)
-        if not self._in_contact:
-            return np.zeros(3)
         offset = est.offset if self.estimate else 0.0
         f = min(float(est.spring.normal_force(ee_next, offset)), est.force_limit)
-        thrust = -f * n
-        if self.reference is not None and self._t_last is not None:
+        v_ref = np.zeros(3)
+        if self.reference is not None:
             ends = self.reference.sample(np.array([self._t_last, self._t_last + dt]))
-            v = (np.asarray(ends[1]) - np.asarray(ends[0])) / dt
-            v_t = v - float(v @ n) * n
-            direction = v_t / np.sqrt(float(v_t @ v_t) + SLIDE_SPEED**2)  # smooth sign
-            thrust += self.friction * f * direction
-        return thrust
+            v_ref = (np.asarray(ends[1]) - np.asarray(ends[0])) / dt
+        return self._thrust.thrust(f, n, v_ref, self._t_last, dt)
