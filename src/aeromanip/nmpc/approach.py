@@ -2,9 +2,12 @@
 
 With ``n`` the surface's outward normal, ``p_e`` the end effector and ``r`` the probe's
 radius, the gap is ``g(x) = (p_e(x) - point) . n - r`` [m] (0: touching) and the speed
-towards the surface ``v_in = -n . J(x) u`` [m/s]. At every stage ``k = 1..N``::
+towards the surface over the step that ends at stage ``k``, from the state it started at
+(``x_k - dt u_{k-1}``: the paper's model, exactly), ``v_in = -n . (p_e(x_k) -
+p_e(x_k - dt u_{k-1})) / dt`` [m/s] (an instantaneous ``J u`` at either end lets a
+plan swing the arm through the step faster than it says). At every stage ``k = 1..N``::
 
-    v_in(x_k, u_{k-1}) <= speed + gain * softplus_w(|g(x_k) - c| - h)
+    v_in <= speed + gain * softplus_w(|g(x_k) - c| - h)
 
 with the band ``[-release, distance]`` = ``[c - h, c + h]``: at most ``speed`` [m/s]
 from ``distance`` [m] before the surface to ``release`` [m] past its face (the first
@@ -83,7 +86,8 @@ class ApproachSpeed(PathConstraint):
     def expression(self, stage: Stage) -> PathRows:
         """``v_in - allowed <= 0`` [m/s]."""
         x, kin = stage.x, stage.kin
-        v_in = -ca.dot(ca.DM(self.normal), kin.ee_jacobian(x) @ stage.u_prev)
+        step = kin.ee_position(x) - kin.ee_position(x - stage.dt * stage.u_prev)
+        v_in = -ca.dot(ca.DM(self.normal), step) / stage.dt
         w = SOFTPLUS_WIDTH
         centre, half = (self.distance - self.release) / 2, (self.distance + self.release) / 2
         off = self.gap(kin.ee_position(x)) - centre

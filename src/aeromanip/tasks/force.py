@@ -40,6 +40,7 @@ from aeromanip.tasks.contact_feedforward import ThrustFeedforward
 F_REF = 0.0  # [N] the set normal force without a schedule
 MAX_FORCE = 1000.0  # [N]
 FORCE_LIMIT_RATIO = 2.5  # default over-force limit, times the largest set force
+MAX_FRICTION = 10.0  # a Coulomb coefficient beyond this is not a surface
 MIN_FORCE_LIMIT = 1.0  # [N] the default over-force limit's floor (a set force of 0)
 
 
@@ -125,10 +126,13 @@ class NormalForce(SurfaceTask):
             ("max_offset", max_offset, 1.0),
             ("search_speed", search_speed, 10.0),
             ("force_limit", limit, MAX_FORCE),
-            ("friction", friction + 1.0, 11.0),  # in [0, 10]
         ):
             if isinstance(value, bool) or not (0.0 < value <= high):
                 raise ConfigError(f"{self.name}.{key}: must be in (0, {high:g}], got {value!r}")
+        if isinstance(friction, bool) or not (0.0 <= friction <= MAX_FRICTION):
+            raise ConfigError(
+                f"{self.name}.friction: must be in [0, {MAX_FRICTION:g}], got {friction!r}"
+            )
         self._estimator_options = dict(
             force_limit=float(limit),
             time_constant=float(time_constant),
