@@ -14,7 +14,7 @@ from aeromanip.robot.loader import load_robot
 from aeromanip.tasks.base import Stage
 from aeromanip.tasks.contact import ContactSpring
 from aeromanip.tasks.contact_estimate import EVENTS, RestPointEstimator
-from aeromanip.tasks.contact_feedforward import HOLD_S, RATE, ThrustFeedforward
+from aeromanip.tasks.contact_feedforward import HOLD_S, LOSS_S, RATE, ThrustFeedforward
 from aeromanip.tasks.force import NormalForce
 
 N = np.array([-1.0, 0.0, 0.0])  # a wall facing -x, its face at x = 0.3
@@ -89,10 +89,10 @@ def test_the_feedforward_is_held_through_a_bounce_and_rate_limited():
     ff.feel(0.2, False)  # a bounce: still on
     ff.thrust(2.0, N, v_ref, 0.2, 0.1)
     assert ff.level == pytest.approx(2.0) and not ff.lost(0.2)
-    t = 0.1 + HOLD_S + 0.05  # no contact for longer than HOLD_S: lost, ramped out
-    assert ff.lost(t)
+    t = 0.1 + HOLD_S + 0.05  # not felt for longer than HOLD_S: ramped out
     ff.thrust(2.0, N, v_ref, t, 0.1)
-    assert ff.level == pytest.approx(1.0)
+    assert ff.level == pytest.approx(1.0) and not ff.lost(t)
+    assert ff.lost(0.1 + LOSS_S + 0.01)  # not felt for LOSS_S: lost
 
 
 def test_the_force_task_with_an_estimate_against_finite_differences():

@@ -4,9 +4,11 @@ the sliding friction, balanced by the flight controller as an acceleration feed-
 Without it the platform's position loop, soft against a spring-loaded probe (a few N/m
 against 150), gives way to the push and builds it only through its velocity integrator,
 over seconds. The feed-forward is on while contact is felt, and for ``hold_s`` [s] after
-the sensor last felt it (a bounce or sensor noise does not switch it), then goes off: a
-lost contact is not pushed after. It changes by at most ``rate`` [N/s], so that neither a
-first touch nor a loss kicks the platform.
+the sensor last felt it (one control step of sensor noise does not switch it), then
+goes off: a lost contact is not pushed after. It changes by at most ``rate`` [N/s], so
+that neither a first touch nor a loss kicks the platform. A contact not felt for
+``loss_s`` [s] after it was is **lost** (``lost``): the force task then drops its set
+force until contact is felt again.
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-HOLD_S = 0.5  # [s] the feed-forward stays on this long after contact was last felt
+HOLD_S = 0.1  # [s] the feed-forward stays on this long after contact was last felt
+LOSS_S = 0.5  # [s] a contact not felt for this long is lost
 RATE = 10.0  # [N/s] its largest change
 SLIDE_SPEED = 0.005  # [m/s] below this reference speed the friction feed-forward fades out
 
@@ -27,6 +30,7 @@ class ThrustFeedforward:
 
     friction: float = 0.0
     hold_s: float = HOLD_S
+    loss_s: float = LOSS_S
     rate: float = RATE
     level: float = 0.0  # [N] the normal force being balanced now
     last_contact: float | None = None  # [s] when contact was last felt
@@ -41,8 +45,8 @@ class ThrustFeedforward:
             self.last_contact = t
 
     def lost(self, t: float) -> bool:
-        """Contact was felt before but not for longer than ``hold_s`` at ``t`` [s]."""
-        return self.last_contact is not None and t - self.last_contact > self.hold_s
+        """Contact was felt before, but not for longer than ``loss_s`` at ``t`` [s]."""
+        return self.last_contact is not None and t - self.last_contact > self.loss_s
 
     def thrust(
         self, force: float, normal: np.ndarray, v_ref: np.ndarray, t: float, dt: float

@@ -14,7 +14,9 @@ stage parameter, so model error does not bias the force. ``feedforward = true`` 
 the flight controller for the thrust that balances the planned contact force
 (``force_feedforward``, applied while the sensor feels contact), as a position
 controller's acceleration feed-forward: without it a multirotor's soft position loop
-gives way to the push and builds it only through its integrator.
+gives way to the push and builds it only through its integrator. With either, a contact
+lost (not felt for ``LOSS_S`` while a force is set) drops the set force to 0 until
+contact is felt again: the NMPC stops pressing into nothing, and logs it.
 """
 
 from __future__ import annotations
@@ -141,6 +143,7 @@ class NormalForce(SurfaceTask):
         )
         self.estimator: RestPointEstimator | None = None
         self._thrust = ThrustFeedforward(float(friction))
+        self._lost = False
         self._t_last: float | None = None
 
     def _spring_numbers(self) -> tuple[float, float, float, float]:
@@ -174,9 +177,11 @@ class NormalForce(SurfaceTask):
         return np.interp(t, self.schedule[:, 0], self.schedule[:, 1])
 
     def param_values(self, times: np.ndarray) -> np.ndarray:
-        """The set force at each time [N] and (``estimate``) the rest-point estimate [m]:
-        (len(times), param_size)."""
+        """The set force at each time [N] (0 while a contact is lost) and (``estimate``)
+        the rest-point estimate [m]: (len(times), param_size)."""
         f = self.set_force(times)[:, None]
+        if self._lost:  # dropped until contact is felt again
+            f = np.zeros_like(f)
         if not self.estimate:
             return f
         return np.hstack([f, np.full_like(f, self._estimator().offset)])
@@ -190,7 +195,7 @@ class NormalForce(SurfaceTask):
         """Forget the estimate (a new run)."""
         self._estimator().reset()
         self._thrust.reset()
-        self._t_last = None
+        self._t_last, self._lost = None, False
 
     def observe(
         self,
@@ -207,6 +212,8 @@ class NormalForce(SurfaceTask):
         force = np.asarray(wrench, dtype=float)[:3]
         normal = np.asarray(est.spring.normal)
         self._thrust.feel(t, float(force @ normal) >= est.contact_force)
+        uses_sensor = self.estimate or self.feedforward
+        self._lost = uses_sensor and self._thrust.lost(t) and self.set_force([t])[0] > 0
         dt = 0.0 if self._t_last is None else max(t - self._t_last, 0.0)
         self._t_last = t
         if self.estimate:
@@ -214,13 +221,16 @@ class NormalForce(SurfaceTask):
 
     def observations(self, t: float) -> dict[str, float]:
         """Logged each step: the set force ``f_ref`` [N] at ``t``; with ``feedforward``
-        the normal force it balances ``f_ff`` [N] and ``contact_lost`` (1: contact felt
-        before, not for ``HOLD_S``); with ``estimate`` the rest-point estimate
-        ``rest_offset`` [m] and the estimator's event (index in ``EVENTS``)."""
+        the normal force it balances ``f_ff`` [N]; with either (the sensor used)
+        ``contact_lost`` (1: contact felt before, not for ``LOSS_S`` while a force is set:
+        the set force is dropped until contact is felt again); with ``estimate`` the
+        rest-point estimate ``rest_offset`` [m] and the estimator's event (index in
+        ``EVENTS``). ``f_ref`` is the schedule's, lost contact or not."""
         out = {"f_ref": float(self.set_force(np.array([t]))[0])}
         if self.feedforward:
             out["f_ff"] = self._thrust.level
-            out["contact_lost"] = float(self._thrust.lost(t))
+        if self.estimate or self.feedforward:
+            out["contact_lost"] = float(self._lost)
         if self.estimate:
             out["rest_offset"] = self._estimator().offset
             out["contact_event"] = float(EVENTS.index(self._estimator().event))
