@@ -5,6 +5,7 @@ log, and a contact lost off the wall's edge: the push stays bounded, the loss is
 import numpy as np
 import pytest
 
+from aeromanip.experiment.contact_plots import plot_contact
 from aeromanip.experiment.runlog import RunLog, read_summary
 from aeromanip.experiment.runner import run_scenarios
 from aeromanip.experiment.scenario import load_scenarios
@@ -39,6 +40,8 @@ def test_the_set_force_is_held_through_the_press_and_the_slide(tmp_path):
     assert s["ee_tangential_rmse_m"] == pytest.approx(np.sqrt(np.mean(tangential**2)))
     # the sensor's reading (with its noise) agrees with the true force along the normal
     np.testing.assert_allclose(-c["f_x"][held], c["f_n"][held], atol=0.25)
+    (figure,) = plot_contact(log, tmp_path / "figures")
+    assert figure.name == "contact_force.png" and figure.stat().st_size > 10_000
 
 
 def test_a_contact_lost_off_the_edge_is_logged_and_the_push_stays_bounded(tmp_path):
