@@ -190,10 +190,21 @@ class Problem:
     ) -> None:
         """Hand this step's measured state, wrist wrench and (if measured) the platform's
         ``(roll, pitch)`` [rad] to every task (``Task.observe``)."""
+        users = self._overriding("observe")
+        if not users:  # nothing to compute (the step's time is the solver's)
+            return
         ee = self.ee_of(x)
         tilted = None if attitude is None else self.ee_tilted(x, ee, *attitude)
-        for e in self.entries:
-            e.task.observe(ee, wrench, t, tilted)
+        for task in users:
+            task.observe(ee, wrench, t, tilted)
+
+    def _overriding(self, method: str) -> list[Task]:
+        """The tasks that override ``Task.<method>`` (the others do nothing there)."""
+        return [
+            e.task
+            for e in self.entries
+            if getattr(type(e.task), method) is not getattr(Task, method)
+        ]
 
     def ee_tilted(self, x: np.ndarray, ee: np.ndarray, roll: float, pitch: float) -> np.ndarray:
         """The EE position [m, world] of state ``x`` (whose EE is ``ee``) with the platform
@@ -220,10 +231,13 @@ class Problem:
     def force_feedforward(self, x_now: np.ndarray, x_next: np.ndarray) -> np.ndarray | None:
         """The thrust feed-forward of every task [N, world] (sum), given the plan's first
         two states; ``None`` when no task asks for one."""
+        users = self._overriding("force_feedforward")
+        if not users:
+            return None
         ee_now, ee_next = self.ee_of(x_now), self.ee_of(x_next)
         forces = [
             f
-            for e in self.entries
-            if (f := e.task.force_feedforward(ee_now, ee_next, self.dt)) is not None
+            for task in users
+            if (f := task.force_feedforward(ee_now, ee_next, self.dt)) is not None
         ]
         return None if not forces else np.sum(forces, axis=0)
