@@ -61,6 +61,18 @@ def _schedule(schedule: Sequence[Sequence[float]], key: str) -> np.ndarray:
     return a
 
 
+_HIGHEST = {"time_constant": 100.0, "max_offset": 1.0, "search_speed": 10.0}
+
+
+def _checked(task: str, **options: float) -> dict[str, float]:
+    """The estimator's options, each in ``(0, highest]`` (a one-line error otherwise)."""
+    for key, value in options.items():
+        high = _HIGHEST.get(key, MAX_FORCE)
+        if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value <= high:
+            raise ConfigError(f"{task}.{key}: must be in (0, {high:g}], got {value!r}")
+    return {k: float(v) for k, v in options.items()}
+
+
 @TASKS.register("force")
 class NormalForce(SurfaceTask):
     """``f_n(x) - f_ref(t)`` [N] (module docstring).
@@ -121,26 +133,19 @@ class NormalForce(SurfaceTask):
         self._set_surface(surface, point, normal)
         ContactSpring((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), *self._spring_numbers())  # checked now
         largest = self.f_ref if self.schedule is None else float(self.schedule[:, 1].max())
-        default_limit = max(FORCE_LIMIT_RATIO * largest, MIN_FORCE_LIMIT)
-        limit = default_limit if force_limit is None else force_limit
-        for key, value, high in (
-            ("time_constant", time_constant, 100.0),
-            ("max_offset", max_offset, 1.0),
-            ("search_speed", search_speed, 10.0),
-            ("force_limit", limit, MAX_FORCE),
-        ):
-            if isinstance(value, bool) or not (0.0 < value <= high):
-                raise ConfigError(f"{self.name}.{key}: must be in (0, {high:g}], got {value!r}")
+        limit = (
+            max(FORCE_LIMIT_RATIO * largest, MIN_FORCE_LIMIT)
+            if force_limit is None
+            else force_limit
+        )
+        self._estimator_options = _checked(
+            self.name, time_constant=time_constant, max_offset=max_offset,
+            search_speed=search_speed, force_limit=limit,
+        )  # fmt: skip
         if isinstance(friction, bool) or not (0.0 <= friction <= MAX_FRICTION):
             raise ConfigError(
                 f"{self.name}.friction: must be in [0, {MAX_FRICTION:g}], got {friction!r}"
             )
-        self._estimator_options = dict(
-            force_limit=float(limit),
-            time_constant=float(time_constant),
-            max_offset=float(max_offset),
-            search_speed=float(search_speed),
-        )
         self.estimator: RestPointEstimator | None = None
         self._thrust = ThrustFeedforward(float(friction))
         self._lost = False
