@@ -71,6 +71,9 @@ class FakePx4:
     at: list[tuple[float, Callable[[FakePx4], None]]] = field(default_factory=list)
     sysid: int = 1
     compid: int = 1
+    modes_taken: bool = True  # False: a mode switch is acked ACCEPTED but not made
+    reject_text: str = ""  # a STATUSTEXT (critical) sent before an ack that is not ACCEPTED
+    ack_to: tuple[int, int] | None = None  # address the acks here instead of the sender
 
     def __post_init__(self) -> None:
         self.conn = mavutil.mavlink_connection(
@@ -142,21 +145,30 @@ class FakePx4:
         for i, q in enumerate(self.joints):
             self.conn.mav.named_value_float_send(ms, f"q{i + 1}".encode(), q)
 
+    def say(self, text: str) -> None:
+        """A critical STATUSTEXT, in chunks of 50 characters with one id as PX4 sends a
+        longer one (streams/STATUSTEXT.hpp L88-118)."""
+        chunks = [text[i : i + 50] for i in range(0, len(text), 50)]
+        for seq, chunk in enumerate(chunks):
+            chunk_id = 1 if len(chunks) > 1 else 0
+            self.conn.mav.statustext_send(M.MAV_SEVERITY_CRITICAL, chunk.encode(), chunk_id, seq)
+
     def _on_command(self, msg: Any) -> None:
         cmd = int(msg.command)
         result = self.acks.get(cmd, M.MAV_RESULT_ACCEPTED)
         if cmd == 187 or result is None:  # DO_SET_ACTUATOR: no ack (a mixer module's)
             return
+        if result != M.MAV_RESULT_ACCEPTED and self.reject_text:
+            self.say(self.reject_text)
         if result == M.MAV_RESULT_ACCEPTED:
             if cmd == 400:
                 self.armed = round(msg.param1) == 1
-            elif cmd == 176 and int(msg.param1) & 1:
+            elif cmd == 176 and int(msg.param1) & 1 and self.modes_taken:
                 self.main, self.sub = int(msg.param2), int(msg.param3)
                 if self.main == OFFBOARD and self.offboard_at is None:
                     self.offboard_at = time.monotonic()
-        self.conn.mav.command_ack_send(
-            cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
-        )
+        to = self.ack_to or (msg.get_srcSystem(), msg.get_srcComponent())
+        self.conn.mav.command_ack_send(cmd, result, 0, 0, *to)
 
 
 def nan_after(kind: str, name: str, value: float, delay: float):

@@ -51,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
     """Check, connect, fly; the exit code says how it ended (module docstring)."""
     from aeromanip.errors import ConfigError
     from aeromanip.experiment.rundir import check_writable
+    from aeromanip.mavlink.arm import check_arm
     from aeromanip.mavlink.protocol import parse_link
     from aeromanip.runtime.flight_scenario import one_scenario
     from aeromanip.runtime.streamer import STREAM_HZ
@@ -62,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
             f"--stream-hz: {stream_hz:g} is not in [{MIN_STREAM_HZ:g}, {MAX_STREAM_HZ:g}]"
         )
     sc = one_scenario(args.scenario, args.set or [], args.variant)
+    check_arm(sc.robot)
     out = Path(args.out or Path("runs") / f"fly-{sc.name.replace('/', '-')}")
     check_writable(out)
     if args.check:

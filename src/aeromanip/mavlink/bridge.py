@@ -71,6 +71,7 @@ class MavlinkTransport(Transport):
         self._clock = TelemetryClock()
         self._acks: dict[int, int] = {}
         self._texts: list[tuple[float, str]] = []  # (arrival, text) of warnings and worse
+        self._text_id = 0  # the chunk id of the last text
         self._mode, self._armed = "other", False
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -154,11 +155,21 @@ class MavlinkTransport(Transport):
                 self._acks[int(msg.command)] = int(msg.result)
                 self._cond.notify_all()
         elif kind == "STATUSTEXT" and msg.severity <= self.m.MAV_SEVERITY_WARNING:
-            with self._cond:
-                text = str(msg.text).rstrip("\t\x00 ")  # PX4 ends its texts with a tab
-                self._texts = [*self._texts[-(TEXTS_KEPT - 1) :], (time.monotonic(), text)]
+            self._on_text(msg)
         for fn in self._handlers.get(kind, ()):
             fn(msg)
+
+    def _on_text(self, msg: Any) -> None:
+        """Keep a warning's text; PX4 sends a text over 50 characters in chunks with one
+        ``id`` (``streams/STATUSTEXT.hpp`` L88-118): they are joined."""
+        text, chunk_id = str(msg.text).rstrip("\x00"), int(getattr(msg, "id", 0))
+        with self._cond:
+            if chunk_id and chunk_id == self._text_id and self._texts:
+                when, head = self._texts[-1]
+                self._texts[-1] = (when, head + text)
+            else:
+                self._texts = [*self._texts[-(TEXTS_KEPT - 1) :], (time.monotonic(), text)]
+            self._text_id = chunk_id
 
     def _for_us(self, msg: Any) -> bool:
         """Whether an ack is addressed to us (PX4 addresses it to the command's sender;
@@ -297,7 +308,7 @@ class MavlinkTransport(Transport):
         if result != self.m.MAV_RESULT_ACCEPTED:
             with self._cond:
                 said = [t for when, t in self._texts if when >= since]
-            why = f" (it said: {said[-1]})" if said else ""
+            why = f" (it said: {said[-1].strip()})" if said else ""  # PX4's end in a tab
             raise LinkError(f"{what}: the autopilot answered {self._result_name(result)}{why}")
 
     def _confirm(self, what: str, seen: Callable[[], bool], timeout_s: float) -> None:
