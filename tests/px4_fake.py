@@ -156,7 +156,7 @@ class FakePx4:
     def _on_command(self, msg: Any) -> None:
         cmd = int(msg.command)
         result = self.acks.get(cmd, M.MAV_RESULT_ACCEPTED)
-        if cmd == 187 or result is None:  # DO_SET_ACTUATOR: no ack (a mixer module's)
+        if result is None:
             return
         if result != M.MAV_RESULT_ACCEPTED and self.reject_text:
             self.say(self.reject_text)
