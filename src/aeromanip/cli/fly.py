@@ -5,7 +5,9 @@ autopilot in offboard mode over MAVLink (``aeromanip.runtime``, ``aeromanip.mavl
 the arm's joint targets go through the autopilot (``MAV_CMD_DO_SET_ACTUATOR``). The run
 directory is the output contract's, written as it flies. Exit codes: 0 the mission flew;
 2 bad input; 3 it flew but did not really fly (as ``aeromanip run``); 4 the link was lost,
-the autopilot refused (arming, offboard) or left offboard (a pilot took over); 130 / 143
+the autopilot refused (arming, offboard), its telemetry could not be flown on (not finite,
+out of range, stale: the vehicle commanded to hold), or it left offboard or disarmed (a
+pilot, a kill switch: nothing commanded); 130 / 143
 stopped by SIGINT / SIGTERM, the vehicle left holding; 5 a row could not be written (disk
 full, permission, read-only, I/O error): the flight stopped, the vehicle left holding.
 """
