@@ -354,3 +354,16 @@ def test_a_refused_arm_is_one_line_with_the_autopilots_reason(tmp_path, capsys):
     assert not any(
         command_fields(r.raw)["command"] == CMD_SET_MODE for r in fake.of_type("COMMAND_LONG")
     )
+
+
+@pytest.mark.parametrize(
+    "main_mode, sub_mode, name",
+    [(6, 0, "offboard"), (4, 3, "hold"), (4, 4, "other"), (4, 0, "other"), (3, 0, "other")],
+)
+def test_the_heartbeats_custom_mode_read_as_px4_packs_it(main_mode, sub_mode, name):
+    """``union px4_custom_mode`` (px4_custom_mode.h L85-90): a reserved uint16, then the
+    main mode and the sub mode bytes, little-endian in the HEARTBEAT's ``custom_mode``."""
+    from aeromanip.mavlink.protocol import mode_name
+
+    (custom,) = struct.unpack("<I", struct.pack("<HBB", 0, main_mode, sub_mode))
+    assert mode_name(custom) == name

@@ -156,3 +156,18 @@ def test_a_vehicle_going_wrong_stops_the_flight_cleanly(case, x0, tmp_path, caps
     else:  # a pilot or the autopilot took over: nothing commanded
         assert modes_after == [] and not s["hold_accepted"]
         assert not any(r.msg.command == 400 for r in v.of_type("COMMAND_LONG") if r.t > went_wrong)
+
+
+def test_telemetry_bad_from_the_start_commands_nothing(x0, tmp_path, capsys):
+    def nan_always(kind, fields, since):
+        return {**fields, "roll": math.nan} if kind == "ATTITUDE" else fields
+
+    rc, v, out = fly_against({"mutate": nan_always}, x0, tmp_path / "run", capsys)
+    assert rc == ExitCode.LINK, out.err
+    lines = out.err.strip().splitlines()
+    assert len(lines) == 1 and "ATTITUDE.roll = nan (not finite); nothing commanded" in lines[0]
+    s = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert s["ending"] == "telemetry fault" and s["steps"] == 0
+    assert v.of_type("SET_POSITION_TARGET_LOCAL_NED") == []
+    assert {r.msg.command for r in v.of_type("COMMAND_LONG")} <= {511}  # rates asked only
+    assert not v.armed
