@@ -5,7 +5,8 @@ It behaves as PX4 does towards an offboard computer, as far as these tests need
 1 (``mavlink_main.cpp`` L2310-2311; custom_mode ``main << 16 | sub << 24``,
 ``px4_custom_mode.h``); ``LOCAL_POSITION_NED``, ``ATTITUDE`` and the arm's
 ``NAMED_VALUE_FLOAT`` q1..qn at ``STATE_HZ``, stamped with its boot time [ms]; COMMAND_ACKs
-addressed to the sender (``mavlink_receiver.cpp`` L121-133). It stands still where it is
+addressed to the sender (``mavlink_receiver.cpp`` L121-133), ``DO_SET_ACTUATOR`` acked too
+(``Commander.cpp`` L1528-1530). It stands still where it is
 put. It records every message it receives with its raw bytes and arrival time, and lets a
 test change what it sends (``mutate``) or do something (``at``) some time after offboard.
 """
