@@ -52,7 +52,7 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-class TestsDoneError(Exception):
+class ServingDoneError(Exception):
     """Stops the SITL's thread."""
 
 
@@ -115,12 +115,12 @@ def gcs():
 
     def sink(row: dict) -> None:
         if done.is_set():
-            raise TestsDoneError
+            raise ServingDoneError
 
     def serve() -> None:
         try:
             sitl.run(sink, max_time_s=RUN_S)
-        except TestsDoneError:
+        except ServingDoneError:
             pass
         except BaseException as e:  # reported by the test
             failures.append(e)

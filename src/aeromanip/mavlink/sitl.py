@@ -42,8 +42,9 @@ from aeromanip.mavlink.sitl_commands import (
     from_int,
     from_long,
 )
+from aeromanip.mavlink.sitl_params import Parameters
 from aeromanip.mavlink.sitl_telemetry import Measurement, Status, StatusTexts, Telemetry
-from aeromanip.mavlink.vehicle import Event, Vehicle
+from aeromanip.mavlink.vehicle import LOSS_S, Event, Vehicle
 from aeromanip.nmpc.controller import Command
 from aeromanip.sim.mjcf import FREE_JOINT
 from aeromanip.sim.physics import PhysicsSimulator
@@ -73,7 +74,7 @@ class SitlAutopilot:
         self.sim = PhysicsSimulator.from_options(sc.robot, options)
         self.sim.reset(sc.x0)
         self.tick = 1.0 / self.sim.outer_rate_hz
-        self.vehicle = Vehicle(sc.robot, sc.x0)
+        self.vehicle = ParamVehicle(sc.robot, sc.x0)
         self.maker = RowMaker(sc)
         self.every = {
             "state": max(1, round(1.0 / (state_hz * self.tick))),
@@ -95,17 +96,23 @@ class SitlAutopilot:
         )
         self.texts = StatusTexts(self.conn)
         self.commands = Commands(self)
-        self._handlers: dict[str, Callable[[Any], None]] = {
-            "SET_POSITION_TARGET_LOCAL_NED": self._on_setpoint,
-            "COMMAND_LONG": lambda msg: self.commands.handle(from_long(msg)),
-            "COMMAND_INT": lambda msg: self.commands.handle(from_int(msg)),
-            "SET_MODE": self._on_set_mode,
-            "PING": self._on_ping,
-            "TIMESYNC": self._on_timesync,
-            "REQUEST_DATA_STREAM": lambda msg: self.say(
-                "REQUEST_DATA_STREAM unsupported: use SET_MESSAGE_INTERVAL", SEVERITY_WARNING
-            ),
-        } | {kind: self._on_unflown for kind in UNFLOWN}
+        self.params = Parameters(self.conn, SYSTEM_ID, self.say)
+        self.vehicle.loss_s = lambda: self.params["COM_OF_LOSS_T"]
+        self._handlers: dict[str, Callable[[Any], None]] = (
+            {
+                "SET_POSITION_TARGET_LOCAL_NED": self._on_setpoint,
+                "COMMAND_LONG": lambda msg: self.commands.handle(from_long(msg)),
+                "COMMAND_INT": lambda msg: self.commands.handle(from_int(msg)),
+                "SET_MODE": self._on_set_mode,
+                "PING": self._on_ping,
+                "TIMESYNC": self._on_timesync,
+                "REQUEST_DATA_STREAM": lambda msg: self.say(
+                    "REQUEST_DATA_STREAM unsupported: use SET_MESSAGE_INTERVAL", SEVERITY_WARNING
+                ),
+            }
+            | {kind: self._on_unflown for kind in UNFLOWN}
+            | self.params.handlers()
+        )
 
     def run(self, sink: Callable[[Row], None], max_time_s: float | None = None) -> None:
         """Fly in real time until ``max_time_s`` [s] (or a signal: ``RunInterrupted``)."""
@@ -185,7 +192,19 @@ class SitlAutopilot:
         """The velocity [m/s, ENU] and yaw rate [rad/s, ENU] that fly ``sp`` now."""
         position, velocity, yaw = self._pose_ned()
         v, rate = setpoints.velocity_and_yaw_rate(sp, position, velocity, yaw, self.tick)
+        v, rate = self._limited(v, rate)
         return frames.ned_to_enu(v), frames.yaw_rate_ned_to_enu(rate)
+
+    def _limited(self, v: setpoints.Vec3, rate: float) -> tuple[setpoints.Vec3, float]:
+        """Velocity [m/s, NED] and yaw rate [rad/s] within the parameters' limits (PX4
+        ``PositionControl.cpp`` L133-137: PX4 lets the position loop's share go first,
+        here the horizontal sum is scaled)."""
+        p = self.params
+        horizontal, limit = math.hypot(v[0], v[1]), p["MPC_XY_VEL_MAX"]
+        scale = limit / horizontal if horizontal > limit else 1.0
+        down = min(max(v[2], -p["MPC_Z_VEL_MAX_UP"]), p["MPC_Z_VEL_MAX_DN"])
+        most = math.radians(p["MC_YAWRATE_MAX"])
+        return (scale * v[0], scale * v[1], down), min(max(rate, -most), most)
 
     def _refuse(self, reason: str, severity: int | None = None) -> None:
         """Say why a message is ignored (critical unless ``severity``)."""
@@ -295,6 +314,22 @@ class SitlAutopilot:
     def close(self) -> None:
         """Release the link."""
         self.conn.close()
+
+
+class ParamVehicle(Vehicle):
+    """``Vehicle`` whose offboard-loss timeout [s] is ``loss_s()`` (``COM_OF_LOSS_T``)."""
+
+    loss_s: Callable[[], float] = staticmethod(lambda: LOSS_S)
+
+    def streaming(self, t: float) -> bool:
+        """Whether setpoints arrive (the last within ``loss_s()``)."""
+        return t - self.last_sp <= self.loss_s()
+
+    def command(self, t: float, x: np.ndarray, speed: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """``Vehicle.command``, its failsafe said with this timeout."""
+        if self.mode == "offboard" and not self.streaming(t):
+            self._hold(t, x, f"failsafe: no setpoint for {self.loss_s():g} s: hold")
+        return super().command(t, x, speed)
 
 
 def _severity(event: str) -> int:
