@@ -15,7 +15,8 @@ answered as PX4 answers them (``src/modules/mavlink/mavlink_receiver.cpp`` and
   ACCEPTED and does nothing, which no client can tell from a switch).
 - ``NAV_LAND``, ``NAV_TAKEOFF``, ``NAV_RETURN_TO_LAUNCH``: modes this SITL cannot fly:
   TEMPORARILY_REJECTED with the same words.
-- ``DO_SET_ACTUATOR``: the arm's joints (``arm.py``).
+- ``DO_SET_ACTUATOR``: the arm's joints (``arm.py``), each value clamped to [-1, 1] (an
+  actuator output's range); a non-finite one keeps its joint.
 - ``REQUEST_MESSAGE`` (and the older ``REQUEST_AUTOPILOT_CAPABILITIES``,
   ``GET_HOME_POSITION``): the message, then ACCEPTED; one the SITL cannot send: DENIED
   (``handle_request_message_command`` L757-790). ``SET_MESSAGE_INTERVAL``: ACCEPTED, or
@@ -203,7 +204,8 @@ class Commands:
         joints = sitl.sc.robot.joints
         for j, value in enumerate(req.params[:6]):
             i = 6 * group + j
-            if i < len(q) and math.isfinite(value):
+            if i < len(q) and math.isfinite(value):  # an output is within [-1, 1]
+                value = min(max(value, -1.0), 1.0)
                 q[i] = actuator_to_joint(value, joints[i].lower, joints[i].upper)
         sitl.vehicle.on_joints(sitl.t, q)
         return ACCEPTED
