@@ -143,6 +143,9 @@ def test_the_streams_come_at_px4s_rates_and_say_a_healthy_armable_px4(gcs):
     t0 = time.monotonic()
     gcs.pump(RATE_WINDOW_S)
     counts = Counter(m.get_type() for t, m in gcs.log if t >= t0)
+    print(
+        "rates [Hz]: " + ", ".join(f"{k} {n / RATE_WINDOW_S:g}" for k, n in sorted(counts.items()))
+    )
     for kind, hz in PX4_RATES.items():
         assert abs(counts[kind] - hz * RATE_WINDOW_S) <= 1, (kind, counts[kind])
     beat = gcs.since(t0, "HEARTBEAT")[-1]
