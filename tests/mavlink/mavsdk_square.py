@@ -5,8 +5,8 @@ healthy armable vehicle, reads and sets a parameter, arms, flies a 1 m square wi
 ``set_velocity_body``, holds, and tries to disarm.
 
 ``fly(url)`` returns what the app saw: its telemetry (``position_velocity_ned`` with the
-event loop's clock, ``time.monotonic``), flight modes, status texts, parameter values
-and the answers to its actions.
+event loop's clock, ``time.monotonic``; ``odometry``, stamped by the vehicle), flight
+modes, status texts, parameter values and the answers to its actions.
 """
 
 import asyncio
@@ -36,7 +36,7 @@ async def record(gen, out: list, loop) -> None:
 async def fly(url: str) -> dict:
     """Fly the app against the vehicle on ``url``; what it saw (module docstring)."""
     loop = asyncio.get_running_loop()
-    seen: dict = {"positions": [], "modes": [], "texts": [], "phases": {}}
+    seen: dict = {"positions": [], "odometry": [], "modes": [], "texts": [], "phases": {}}
     config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
     async with Mavsdk(config) as mavsdk:
         await mavsdk.add_any_connection(url)
@@ -44,7 +44,9 @@ async def fly(url: str) -> dict:
         assert drone is not None, "no autopilot"
         seen["phases"]["connected"] = loop.time()
         telemetry = TelemetryAsync(drone)
+        await telemetry.set_rate_odometry(50.0)  # stamped: the vehicle's time of each
         tasks = [
+            asyncio.ensure_future(record(telemetry.subscribe_odometry(), seen["odometry"], loop)),
             asyncio.ensure_future(record(telemetry.subscribe_position_velocity_ned(),
                                          seen["positions"], loop)),
             asyncio.ensure_future(record(telemetry.subscribe_flight_mode(), seen["modes"], loop)),

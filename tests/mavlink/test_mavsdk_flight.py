@@ -3,14 +3,17 @@ runs ``mavsdk_square``, an offboard app written as MAVSDK documents it, against
 ``aeromanip sitl flight`` on 127.0.0.1 (UDP).
 
 Truth: the SITL's truth log (the physics), read after a clean stop (SIGINT). MAVSDK's
-telemetry (``position_velocity_ned``, measured with the physics' 1 mm noise) is compared
-with it at the same wall-clock times (truth rows at 20 Hz interpolated; ENU -> NED);
-the square, the return and the body-frame leg are checked on the truth itself.
+telemetry (measured with the physics' 1 mm noise) is compared with it at the vehicle's
+time: ``odometry`` by its stamps (the SITL's clock, the truth log's ``t``),
+``position_velocity_ned`` (no stamp) by the ODOMETRY of the same measurement; truth rows
+at 20 Hz interpolated, ENU -> NED. The square, the return and the body-frame leg are
+checked on the truth itself.
 Bounded: the app within ``APP_LIMIT_S``, the SITL within ``SITL_MAX_S`` and stopped (or
 killed) when the app ends.
 """
 
 import asyncio
+import json
 import math
 import signal
 import socket
@@ -91,6 +94,11 @@ def test_the_app_connects_to_a_healthy_armable_vehicle_and_its_parameters(flight
     assert seen["phases"]["healthy"] - seen["phases"]["connected"] < 5.0
     assert seen["loss_timeout"] == 0.5 and seen["loss_action"] == 5  # Hold
     assert seen["xy_vel_max"] == 2.0  # set and read back
+    # each request answered once: MAVSDK does not ask again (it re-asks what is refused)
+    received = json.loads(flight["summary_file"].read_text())["received"]
+    requests = {k: n for k, n in received.items() if k.split(":")[-1] in ("512", "520", "410")}
+    print(f"requests the SITL read: {requests}; all: {received}")
+    assert 1 <= sum(requests.values()) <= 6
     print(f"MAVSDK app: {flight['app_s']:.1f} s, phases "
           + ", ".join(f"{k} {v - seen['phases']['connected']:.2f}"
                       for k, v in seen["phases"].items()))  # fmt: skip
@@ -106,22 +114,46 @@ def test_the_modes_and_the_refused_disarm_as_px4_reports_them(flight):
     assert texts == ["armed: hold", "offboard", "hold (commanded)", "Disarming denied: not landed"]
 
 
-def test_mavsdk_telemetry_is_the_truth_within_1_cm(flight):
+def ned_truth(truth: RunLog, at: np.ndarray, clock: str) -> np.ndarray:
+    """The true position (NED) at times ``at`` of the truth log's ``clock`` column."""
+    x, y, z = (np.interp(at, truth.column(clock), truth.column(c)) for c in ("x", "y", "z"))
+    return np.column_stack([y, x, -z])  # ENU -> NED: north = y, east = x, down = -z
+
+
+def test_mavsdk_odometry_is_the_truth_within_1_cm_at_the_vehicles_time(flight):
     truth = flight["truth"]
-    samples = [(t, p.position) for t, p in flight["seen"]["positions"]]
-    wall = np.array([t for t, _ in samples]) + flight["wall_minus_mono"]
-    inside = (wall > truth.column("wall_time")[0]) & (wall < truth.column("wall_time")[-1])
-    wall = wall[inside]
-    ned = np.array([(p.north_m, p.east_m, p.down_m) for _, p in samples])[inside]
-    armed = truth_at(truth, wall, "armed") > 0.5
-    assert armed.sum() >= 50 * 15  # 50 Hz over the whole flight
-    # truth ENU -> NED: north = y, east = x, down = -z
-    expected = np.column_stack(
-        [truth_at(truth, wall, "y"), truth_at(truth, wall, "x"), -truth_at(truth, wall, "z")]
-    )
-    error = np.linalg.norm(ned - expected, axis=1)
-    print(f"MAVSDK vs truth: {len(error)} samples, max {1e3 * error.max():.2f} mm, "
+    stamped = [(o.time_usec * 1e-6, o.position_body) for _, o in flight["seen"]["odometry"]]
+    t = np.array([s for s, _ in stamped])
+    inside = (t >= truth.column("t")[0]) & (t <= truth.column("t")[-1])
+    ned = np.array([(p.x_m, p.y_m, p.z_m) for _, p in stamped])[inside]
+    error = np.linalg.norm(ned - ned_truth(truth, t[inside], "t"), axis=1)
+    print(f"MAVSDK odometry vs truth: {len(error)} samples, max {1e3 * error.max():.2f} mm, "
           f"RMS {1e3 * math.sqrt(np.mean(error**2)):.2f} mm")  # fmt: skip
+    assert len(error) >= 50 * 15  # 50 Hz over the whole flight
+    assert error.max() < TELEMETRY_TOL_M
+
+
+def test_mavsdk_position_ned_is_the_truth_within_1_cm_at_the_vehicles_time(flight):
+    """``position_velocity_ned`` carries no time stamp: each sample is the measurement an
+    ODOMETRY carried too (the same float32 position, bit for bit), which gives its time."""
+    truth = flight["truth"]
+    stamp = {
+        (o.position_body.x_m, o.position_body.y_m, o.position_body.z_m): o.time_usec * 1e-6
+        for _, o in flight["seen"]["odometry"]
+    }
+    samples = [(t, (p.position.north_m, p.position.east_m, p.position.down_m))
+               for t, p in flight["seen"]["positions"]]  # fmt: skip
+    matched = [(seen_at, stamp[ned], ned) for seen_at, ned in samples if ned in stamp]
+    assert len(matched) >= 0.95 * len(samples) >= 50 * 15
+    t = np.array([m[1] for m in matched])
+    ned = np.array([m[2] for m in matched])
+    error = np.linalg.norm(ned - ned_truth(truth, t, "t"), axis=1)
+    # how old each was when the app saw it: the truth log's wall clock at that time
+    age = np.array([m[0] for m in matched]) + flight["wall_minus_mono"] - np.interp(
+        t, truth.column("t"), truth.column("wall_time"))  # fmt: skip
+    print(f"MAVSDK position NED vs truth: {len(error)} of {len(samples)} samples stamped, "
+          f"max {1e3 * error.max():.2f} mm; seen {1e3 * np.median(age):.1f} ms (median), "
+          f"{1e3 * age.max():.0f} ms (max) after the SITL sent it")  # fmt: skip
     assert error.max() < TELEMETRY_TOL_M
 
 

@@ -23,6 +23,7 @@ import math
 import struct
 import sys
 import time
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
@@ -44,8 +45,9 @@ from aeromanip.mavlink.sitl_commands import (
 )
 from aeromanip.mavlink.sitl_params import Parameters
 from aeromanip.mavlink.sitl_telemetry import Measurement, Status, StatusTexts, Telemetry
-from aeromanip.mavlink.vehicle import LOSS_S, Event, Vehicle
+from aeromanip.mavlink.vehicle import Event, Vehicle
 from aeromanip.nmpc.controller import Command
+from aeromanip.robot.spec import RobotSpec
 from aeromanip.sim.mjcf import FREE_JOINT
 from aeromanip.sim.physics import PhysicsSimulator
 
@@ -74,7 +76,8 @@ class SitlAutopilot:
         self.sim = PhysicsSimulator.from_options(sc.robot, options)
         self.sim.reset(sc.x0)
         self.tick = 1.0 / self.sim.outer_rate_hz
-        self.vehicle = ParamVehicle(sc.robot, sc.x0)
+        self.params = Parameters(self.conn, SYSTEM_ID, self.say)
+        self.vehicle = ParamVehicle(sc.robot, sc.x0, self.params)
         self.maker = RowMaker(sc)
         self.every = {
             "state": max(1, round(1.0 / (state_hz * self.tick))),
@@ -96,8 +99,7 @@ class SitlAutopilot:
         )
         self.texts = StatusTexts(self.conn)
         self.commands = Commands(self)
-        self.params = Parameters(self.conn, SYSTEM_ID, self.say)
-        self.vehicle.loss_s = lambda: self.params["COM_OF_LOSS_T"]
+        self.received: Counter[str] = Counter()  # message types (commands by id) read
         self._handlers: dict[str, Callable[[Any], None]] = (
             {
                 "SET_POSITION_TARGET_LOCAL_NED": self._on_setpoint,
@@ -152,7 +154,9 @@ class SitlAutopilot:
 
     def _receive(self) -> None:
         while (msg := self.conn.recv_msg()) is not None:
-            handler = self._handlers.get(msg.get_type())
+            kind = msg.get_type()
+            self.received[f"{kind}:{msg.command}" if kind.startswith("COMMAND_") else kind] += 1
+            handler = self._handlers.get(kind)
             if handler is None:
                 continue  # not for an autopilot (PX4 ignores it too), or not MAVLink
             try:
@@ -317,9 +321,15 @@ class SitlAutopilot:
 
 
 class ParamVehicle(Vehicle):
-    """``Vehicle`` whose offboard-loss timeout [s] is ``loss_s()`` (``COM_OF_LOSS_T``)."""
+    """``Vehicle`` whose offboard-loss timeout is the parameter ``COM_OF_LOSS_T``."""
 
-    loss_s: Callable[[], float] = staticmethod(lambda: LOSS_S)
+    def __init__(self, spec: RobotSpec, x0: np.ndarray, params: Parameters) -> None:
+        super().__init__(spec, x0)
+        self.params = params
+
+    def loss_s(self) -> float:
+        """The offboard-loss timeout now [s]."""
+        return self.params["COM_OF_LOSS_T"]
 
     def streaming(self, t: float) -> bool:
         """Whether setpoints arrive (the last within ``loss_s()``)."""

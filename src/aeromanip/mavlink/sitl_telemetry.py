@@ -19,7 +19,8 @@ Each stream has a period in SITL ticks (``DEFAULT_HZ``; the state messages at th
   over 100 m).
 - ``SYSTEM_TIME``: wall clock [us] and SITL time [ms]; ``AUTOPILOT_VERSION`` on request.
 - ``LOCAL_POSITION_NED``, ``ATTITUDE`` and the joints (``NAMED_VALUE_FLOAT``) from the
-  measured state (the physics' measurement noise).
+  measured state (the physics' measurement noise); ``ODOMETRY`` (the same, stamped with
+  the SITL time) when asked for, as on PX4's ground-station link.
 """
 
 from __future__ import annotations
@@ -49,6 +50,10 @@ DEFAULT_HZ = {  # [Hz] PX4's rates on a ground-station link (mavlink_main.cpp L1
     "SYSTEM_TIME": 1.0,
 }
 STATE_MESSAGES = ("LOCAL_POSITION_NED", "ATTITUDE", "NAMED_VALUE_FLOAT")
+#: streams PX4 sends on an onboard link only: off here until SET_MESSAGE_INTERVAL asks
+#: (its "default", interval 0, is then this rate [Hz], to the nearest whole number of
+#: ticks; mavlink_main.cpp L1491-1563)
+ONBOARD_HZ = {"ODOMETRY": 30.0}
 ON_REQUEST = ("AUTOPILOT_VERSION",)
 MAV_MODE_FLAG_STABILIZE, MAV_MODE_FLAG_GUIDED, MAV_MODE_FLAG_AUTO = 16, 8, 4
 MODE_FLAGS = {  # what PX4 adds to base_mode in each mode (HEARTBEAT.hpp L86-100)
@@ -114,11 +119,11 @@ class Telemetry:
         self, conn: Any, m: Any, tick: float, state_hz: float, mav_type: int, home: Vec3
     ) -> None:
         self.conn, self.m, self.tick, self.mav_type, self.home = conn, m, tick, mav_type, home
-        rates = DEFAULT_HZ | dict.fromkeys(STATE_MESSAGES, state_hz)
+        rates = DEFAULT_HZ | dict.fromkeys(STATE_MESSAGES, state_hz) | ONBOARD_HZ
         self.default_every: dict[str, int] = {
             name: max(1, round(1.0 / (hz * tick))) for name, hz in rates.items()
         }
-        self.every: dict[str, int | None] = dict(self.default_every)
+        self.every: dict[str, int | None] = dict(self.default_every) | dict.fromkeys(ONBOARD_HZ)
         self.sent: dict[str, int] = {}  # message name -> how many were sent
         self._senders = {
             "HEARTBEAT": self._heartbeat,
@@ -130,6 +135,7 @@ class Telemetry:
             "LOCAL_POSITION_NED": self._local_position,
             "ATTITUDE": self._attitude,
             "NAMED_VALUE_FLOAT": self._joints,
+            "ODOMETRY": self._odometry,
             "AUTOPILOT_VERSION": self._autopilot_version,
         }
 
@@ -219,6 +225,18 @@ class Telemetry:
         for i, value in enumerate(meas.joints):
             self.conn.mav.named_value_float_send(ms, joint_name(i).encode(), value)
 
+    def _odometry(self, meas: Measurement, status: Status) -> None:
+        """PX4's ``streams/ODOMETRY.hpp`` L60-130: stamped with the measurement's time,
+        position and velocity in local NED, the attitude quaternion, body rates;
+        covariances unknown (NaN)."""
+        ned = self.m.MAV_FRAME_LOCAL_NED
+        unknown = [math.nan] * 21
+        self.conn.mav.odometry_send(
+            _usec(meas.t), ned, ned, *meas.position, quaternion(*meas.attitude),
+            *meas.velocity, *meas.rates, unknown, unknown, 0,
+            self.m.MAV_ESTIMATOR_TYPE_AUTOPILOT, 0,
+        )  # fmt: skip
+
     def _autopilot_version(self, meas: Measurement, status: Status) -> None:
         self.conn.mav.autopilot_version_send(
             CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
@@ -226,12 +244,26 @@ class Telemetry:
         )  # fmt: skip
 
 
+def quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """The attitude (Z-Y-X Euler angles [rad]) as a quaternion (w, x, y, z)."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
 def _ms(t: float) -> int:
-    return int(1e3 * t) & 0xFFFFFFFF
+    """SITL time [s] as ``time_boot_ms`` (rounded: ``t`` sums ticks in floating point)."""
+    return round(1e3 * t) & 0xFFFFFFFF
 
 
 def _usec(t: float) -> int:
-    return int(1e6 * t)
+    return round(1e6 * t)
 
 
 def _clamp16(v: float) -> int:
