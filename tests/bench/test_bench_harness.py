@@ -146,3 +146,13 @@ def test_profile_attributes_each_compiled_call_to_its_part():
     assert "model: merit (line search)" not in rti["parts_ms"]
     assert weighted["parts_ms"]["model: merit (line search)"] > 0
     assert "| QP solver (DAQP) [ms] |" in profile.format_profile(rows)
+
+
+def test_the_contact_variant_gives_ipopts_closed_loop():
+    """The contact task's bench (the force and surface tasks, the approach bound): the
+    SQP's commands are IPOPT's, converged tightly, along the first 3 s."""
+    res = bench_controller(["contact-ipopt", "contact"], duration=3.0, warmup=1)["variants"]
+    sqp = res["contact"]
+    assert sqp["steps"] == 30 and sqp["failures"] == res["contact-ipopt"]["failures"] == 0
+    assert sqp["vs"] == "contact-ipopt" and sqp["max_command_diff"] < 1e-4
+    assert sqp["cost_ratio"] == pytest.approx(1.0, abs=1e-6)

@@ -84,8 +84,9 @@ def test_a_stock_velocity_setpoint_flies_and_a_nan_one_is_refused_in_words():
         client.close()
         sitl.close()
     assert not failures and not thread.is_alive()
-    # refused as PX4's position controller rejects it; said once, not at every message
-    assert texts == ["SET_POSITION_TARGET_LOCAL_NED: invalid setpoints"]
+    # each event said, in order; the bad setpoint refused as PX4's position controller
+    # rejects it, said once, not at every message
+    assert texts == ["armed: hold", "offboard", "SET_POSITION_TARGET_LOCAL_NED: invalid setpoints"]
     flown = [r for r in rows if r["status"] == "offboard"]
     assert len(flown) >= 10
     # north (ENU y) at the commanded speed for the offboard part, give or take the

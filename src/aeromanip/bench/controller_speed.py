@@ -20,6 +20,9 @@ of their applied commands from it.
   Python instead of compiled C (``compiled_loop``). Each with the ``sqp`` backend and, as
   the reference answer, with IPOPT warm-started and converged tightly (``-ipopt``,
   ``tol = 1e-10``: at its default tolerance IPOPT's own answer moves by ~3e-4 rad/s).
+* ``contact``: the ``contact-wall`` problem (its ``cog`` variant: the force task with its
+  rest-point estimate as a parameter, the surface-tangential task, the approach-speed
+  bound; 10 Hz, N = 10) in the ideal loop, where the spring model is the contact.
 """
 
 from __future__ import annotations
@@ -62,6 +65,9 @@ VARIANTS: dict[str, tuple[str, str, str, dict | None, str | None]] = {
     "weighted-python-loop": ("flight", "weighted", "sqp", PYTHON_LOOP, "weighted"),
     "rti-python-loop": ("flight", "weighted", "sqp-rti", PYTHON_LOOP, "rti"),
     "hierarchical-python-loop": ("flight", "hierarchical", "sqp", PYTHON_LOOP, "hierarchical"),
+    # contact inspection (contact-wall, cog): the force and surface tasks, the approach bound
+    "contact-ipopt": ("contact", "weighted", "ipopt", REF_OPTIONS, None),
+    "contact": ("contact", "weighted", "sqp", None, "contact-ipopt"),
 }
 
 
@@ -106,13 +112,18 @@ KINDS: dict[str, tuple[str, list[str]]] = {
     # turned, every joint within 0.1 rad of a limit
     "far": ("flight", ["initial_state=[0.5, -0.5, 1.4, 1.2, 1.47, -1.5, 2.1]"]),
     "clearance": ("clearance", []),  # the reference rises to the base: eq. 17 binds
+    # press a wall and slide on it (the contact spring in the ideal loop: no sensor)
+    "contact": ("contact-wall", []),
 }
+#: the variant of a scenario that has several
+KIND_VARIANT = {"contact": "cog"}
 
 
 def bench_scenario(kind: str, duration: float) -> Scenario:
     name, extra = KINDS[kind]
     sets = [f"duration={duration}", "sim=kinematic", *extra]
-    sc = load_scenarios(name, sets)[""]
+    variant = KIND_VARIANT.get(kind)
+    sc = load_scenarios(name, sets, only=variant)[variant or ""]
     if kind == "fast":  # the flight's Lissajous frequencies [Hz], FAST times higher
         freq = sc.resolved["reference"]["frequency"]
         fast = f"reference.frequency={[FAST * f for f in freq]}"

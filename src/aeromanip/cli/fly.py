@@ -5,7 +5,9 @@ autopilot in offboard mode over MAVLink (``aeromanip.runtime``, ``aeromanip.mavl
 the arm's joint targets go through the autopilot (``MAV_CMD_DO_SET_ACTUATOR``). The run
 directory is the output contract's, written as it flies. Exit codes: 0 the mission flew;
 2 bad input; 3 it flew but did not really fly (as ``aeromanip run``); 4 the link was lost,
-the autopilot refused (arming, offboard) or left offboard (a pilot took over); 130 / 143
+the autopilot refused (arming, offboard), its telemetry could not be flown on (not finite,
+out of range, stale: the vehicle commanded to hold), or it left offboard or disarmed (a
+pilot, a kill switch: nothing commanded); 130 / 143
 stopped by SIGINT / SIGTERM, the vehicle left holding; 5 a row could not be written (disk
 full, permission, read-only, I/O error): the flight stopped, the vehicle left holding.
 """
@@ -51,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     """Check, connect, fly; the exit code says how it ended (module docstring)."""
     from aeromanip.errors import ConfigError
     from aeromanip.experiment.rundir import check_writable
+    from aeromanip.mavlink.arm import check_arm
     from aeromanip.mavlink.protocol import parse_link
     from aeromanip.runtime.flight_scenario import one_scenario
     from aeromanip.runtime.streamer import STREAM_HZ
@@ -62,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
             f"--stream-hz: {stream_hz:g} is not in [{MIN_STREAM_HZ:g}, {MAX_STREAM_HZ:g}]"
         )
     sc = one_scenario(args.scenario, args.set or [], args.variant)
+    check_arm(sc.robot)
     out = Path(args.out or Path("runs") / f"fly-{sc.name.replace('/', '-')}")
     check_writable(out)
     if args.check:

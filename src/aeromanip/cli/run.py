@@ -35,6 +35,10 @@ SUMMARY_COLUMNS = (
 PHYSICS_COLUMNS = (  # shown when a run has them
     ("roll_pitch_mean_deg", "tilt deg", "{:.3f}"),
     ("arm_torque_mean_nm", "arm N m", "{:.4f}"),
+    ("force_rmse_n", "F RMSE N", "{:.3f}"),
+    ("force_contact_share", "contact", "{:.3f}"),
+    ("f_n_first_touch_peak_n", "touch N", "{:.2f}"),
+    ("ee_tangential_rmse_m", "slide m", "{:.4f}"),
 )
 
 

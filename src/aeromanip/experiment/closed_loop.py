@@ -23,6 +23,7 @@ from aeromanip.nmpc.controller import Command, Controller
 from aeromanip.nmpc.strategies import STRATEGIES
 from aeromanip.robot.spec import PLATFORM_DOFS
 from aeromanip.sim.base import SIMULATORS, Simulator
+from aeromanip.sim.contact import read_surfaces
 
 Row = dict[str, Any]
 
@@ -51,6 +52,7 @@ def log_columns(sc: Scenario, sim: Simulator) -> list[str]:
     cols = [*contract_columns(sc.robot.n_joints), "iterations", "message"]
     cols += [f"clear_{p}" for p in clearance_points(sc)]
     cols += [f"cost_{e.name}" for e in sc.problem.entries]
+    cols += list(sc.problem.observations(0.0))
     if STRATEGIES.get(sc.strategy).by_level:  # per level: optimum, gain, loss
         for lvl in sc.problem.levels:
             cols += [f"level{lvl}_{k}" for k in ("cost", "objective", "gain", "loss")]
@@ -75,6 +77,12 @@ def run_meta(sc: Scenario) -> dict[str, Any]:
         meta["clearance_planned"] = min(
             c.d_min for c in sc.problem.constraints if isinstance(c, Clearance)
         )
+    surfaces = sc.sim_options.get("surfaces") if sc.sim == "physics" else None
+    if surfaces:  # the contact metrics' tangents
+        meta["surface_normals"] = [
+            list(s.normal)
+            for s in read_surfaces(surfaces)  # checked when built
+        ]
     if (markers := sc.reference.markers()) is not None:
         meta["waypoints"] = np.asarray(markers).tolist()
     return meta
@@ -142,6 +150,7 @@ class RowMaker:
             message=cmd.message,
         )
         row.update({f"cost_{n}": c for n, c in cmd.task_costs.items()})
+        row.update(cmd.observations)
         if self.by_level:
             for lv in cmd.levels:
                 for key in ("cost", "objective", "gain", "loss"):
@@ -179,11 +188,15 @@ def fly(
             # a signal is raised between steps, never inside CasADi's or MuJoCo's C calls
             # (one landing in a conversion of their results surfaced as a SystemError)
             with deferred():
-                cmd = ctrl.step(sim.state(), t, sim.rates() if measure_rates else None)
+                rates = sim.rates() if measure_rates else None
+                measured = (sim.measured_wrench(), sim.measured_attitude())
+                cmd = ctrl.step(sim.state(), t, rates, *measured)
                 row = maker.row(t, sim.true_state(), sim.ee_position(), cmd)
                 now = {n: v for n, v in sim.extras().items() if n in sim.instant_extras}
                 if lag > 0:
                     sim.advance(held_u, held_start, lag)
+                if cmd.force_ff is not None:  # from now on (the previous one flew the lag)
+                    sim.set_force_feedforward(cmd.force_ff)
                 sim.advance(cmd.u, cmd.plan_x, dt - lag)
                 held_u, held_start = cmd.u, cmd.plan_x[0] + (dt - lag) * cmd.u
                 row.update(sim.extras())  # means over the period this row's command flew

@@ -25,6 +25,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from aeromanip.errors import ConfigError
+from aeromanip.experiment.contact_plots import plot_contact
 from aeromanip.experiment.plot_style import (
     active,
     bound_lines,
@@ -261,7 +262,7 @@ def plot_run(log: RunLog, out_dir: str | Path) -> list[Path]:
     if all(f"{p}_{c}" in log for p in ("ee", "ref") for c in "xyz"):
         draws.append(plot_tracking)
     draws += [plot_commands, plot_joints, plot_platform, plot_cog, plot_clearance]
-    draws += [plot_attitude, plot_solve_time]
+    draws += [plot_attitude, plot_contact, plot_solve_time]
     paths: list[Path] = []
     for draw in draws:
         paths += _drawn(draw, log, out_dir)

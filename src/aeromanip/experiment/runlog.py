@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from aeromanip.errors import ConfigError
+from aeromanip.experiment.contact_metrics import force_metrics
 
 LOG_FILE = "log.csv"
 META_FILE = "meta.json"
@@ -238,12 +239,14 @@ class RunLog:
 
     def _contact(self) -> dict[str, Any]:
         """With surfaces (a ``contact`` column): the share of rows in contact and the
-        largest normal force [N]; nothing otherwise."""
+        largest normal force [N], and with a set force the force regulation's metrics
+        (``contact_metrics``); nothing otherwise."""
         if "contact" not in self.columns or "f_n" not in self.columns or len(self) == 0:
             return {}
         return {
             "contact_share": float(np.nanmean(self.columns["contact"])),
             "f_n_max_n": float(np.nanmax(self.columns["f_n"])),
+            **force_metrics(self.columns, (self.meta.get("surface_normals") or [None])[0]),
         }
 
     def _level_losses(self) -> dict[str, Any]:

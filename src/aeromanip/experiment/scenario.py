@@ -43,6 +43,7 @@ import numpy as np
 from aeromanip.config import Table, load_toml, resolve_toml
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.sources import builtin_scenarios, expand_variants, scenario_source
+from aeromanip.nmpc.approach import APPROACH_GAIN, RELEASE, ApproachSpeed
 from aeromanip.nmpc.backends import BACKENDS
 from aeromanip.nmpc.constraints import D_MIN, Bounds, Clearance
 from aeromanip.nmpc.model import MAX_TAU
@@ -308,6 +309,24 @@ def _clearance(t: Table, problem: Problem) -> Clearance | None:
     return clearance
 
 
+def _approach(t: Table, problem: Problem) -> None:
+    """The ``[approach]`` table: a bounded approach speed near a surface (``nmpc.approach``)."""
+    if not t.has("approach"):
+        return
+    at = t.table("approach")
+    planes, radius = _scenario_surfaces(t)
+    index = at.int("surface", 0, minimum=0)
+    if index >= len(planes):
+        raise ConfigError(
+            f"{at.key('surface')}: {index}, but the scenario has {len(planes)} "
+            "[[physics.surfaces]] (indices from 0)"
+        )
+    speed, distance = at.float("speed"), at.float("distance")
+    gain, release = at.float("gain", APPROACH_GAIN), at.float("release", RELEASE)
+    at.done()
+    problem.add_constraint(ApproachSpeed(*planes[index], speed, distance, gain, radius, release))
+
+
 def _initial_state(
     t: Table, problem: Problem, bounds: Bounds, clearance: Clearance | None
 ) -> np.ndarray:
@@ -369,6 +388,7 @@ def build_scenario(data: dict[str, Any], base_dir: Path, variant: str = "") -> S
     reference = reference_from_table(t.table("reference"), base_dir=base_dir)
     tracked = _tasks(t, problem, reference)
     clearance = _clearance(t, problem)
+    _approach(t, problem)
     x0 = _initial_state(t, problem, bounds, clearance)
     sim, physics, sim_options = _simulation(t, robot, cs)
     duration = t.float("duration", minimum=cs.dt, maximum=MAX_DURATION)

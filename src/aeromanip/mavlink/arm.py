@@ -1,9 +1,11 @@
 """The arm through the autopilot: joint targets as ``MAV_CMD_DO_SET_ACTUATOR``, joint
 positions back as ``NAMED_VALUE_FLOAT``.
 
-Targets: joint ``i`` (1-based) is actuator ``i``: ``param(i - 6 k)`` of the command whose
-``param7`` (the actuator set index) is ``k = (i - 1) // 6``; unused params are NaN (no
-change). A joint target ``q`` [rad] is sent as ``2 (q - lower) / (upper - lower) - 1``, in
+Targets: joint ``i`` (1-based) is actuator ``i``: ``param(i)`` of the command, whose
+``param7`` (the actuator set index) is 0; unused params are NaN (no change). PX4 reads
+set index 0 only, six outputs (``FunctionActuatorSet.hpp`` L55-76 at PX4 161b530), so an
+arm of more than six joints is refused (``ConfigError``) before anything is sent. A
+joint target ``q`` [rad] is sent as ``2 (q - lower) / (upper - lower) - 1``, in
 ``[-1, 1]`` across the joint's limits. On PX4 assign the servo outputs the functions
 "Peripheral via Actuator Set 1..n" and set their PWM range to the joint limits.
 
@@ -20,6 +22,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from aeromanip.errors import ConfigError
 from aeromanip.robot.spec import RobotSpec
 from aeromanip.runtime.transport import ArmInterface
 
@@ -48,6 +51,15 @@ def actuator_params(q: Sequence[float], limits: Sequence[tuple[float, float]]) -
     return out
 
 
+def check_arm(spec: RobotSpec) -> None:
+    """``ConfigError`` if PX4 cannot drive ``spec``'s joints (more than six)."""
+    if spec.n_joints > ACTUATORS_PER_COMMAND:
+        raise ConfigError(
+            f"robot: {spec.n_joints} joints; MAV_CMD_DO_SET_ACTUATOR drives at most "
+            f"{ACTUATORS_PER_COMMAND} (PX4 reads actuator set 0 only)"
+        )
+
+
 def joint_name(i: int) -> str:
     """The ``NAMED_VALUE_FLOAT`` name of joint ``i`` (0-based): ``q1``, ``q2``..."""
     return f"q{i + 1}"
@@ -64,6 +76,7 @@ class MavlinkActuatorArm(ArmInterface):
     """
 
     def __init__(self, transport: Any, spec: RobotSpec, feedback: bool = True) -> None:
+        check_arm(spec)
         self.transport = transport
         self.limits = [(j.lower, j.upper) for j in spec.joints]
         self.names = {joint_name(i): i for i in range(spec.n_joints)}

@@ -1,24 +1,29 @@
 """The software-in-the-loop autopilot: the scenario's robot in the MuJoCo physics (its
 PX4-like inner loop taking velocity + yaw-rate setpoints, ``physics.setpoint =
-"velocity"``), flown in real time behind the MAVLink subset of ``protocol``.
+"velocity"``), flown in real time behind PX4's MAVLink, as far as an offboard app and a
+ground station touch it.
 
-Every ``tick`` (the physics' outer-loop period, 10 ms by default) it reads what arrived
-(setpoints, ``COMMAND_LONG``: arm, mode, actuators; each answered by a ``COMMAND_ACK``),
-reads ``SET_POSITION_TARGET_LOCAL_NED`` as PX4 does (``setpoints``: every mask and frame
-PX4 takes; a refused one is a STATUSTEXT with PX4's words) and flies the last accepted
-one through its position and yaw loops,
-lets ``Vehicle`` decide what to fly and advances the physics by the tick. It sends
-``LOCAL_POSITION_NED`` + ``ATTITUDE`` + the joints (``NAMED_VALUE_FLOAT``) at ``state_hz``
-(with the physics' measurement noise: ``[physics] noise``), a ``HEARTBEAT`` at
-``HEARTBEAT_HZ`` and at every mode change, and hands a truth row (the contract columns
-from the true state plus roll, pitch, motors, velocity, mode) to its sink at ``TRUTH_HZ``.
+Every ``tick`` (the physics' outer-loop period, 10 ms by default) it reads what arrived:
+``SET_POSITION_TARGET_LOCAL_NED`` read as PX4 does (``setpoints``; a refused one is a
+STATUSTEXT with PX4's words), ``COMMAND_LONG`` / ``COMMAND_INT`` and ``SET_MODE``
+(``sitl_commands``: each answered by a ``COMMAND_ACK`` to its sender), ``PING`` and
+``TIMESYNC`` (answered), the setpoint kinds it cannot fly (refused in words). It flies the
+last accepted setpoint through its position and yaw loops, lets ``Vehicle`` decide what
+to fly and advances the physics by the tick. It streams what PX4 streams
+(``sitl_telemetry``: HEARTBEAT, SYS_STATUS, HOME_POSITION, GLOBAL_POSITION_INT, .., and
+``LOCAL_POSITION_NED`` + ``ATTITUDE`` + the joints at ``state_hz``, measured with the
+physics' noise), says each event in a STATUSTEXT, and hands a truth row (the contract
+columns from the true state plus roll, pitch, motors, velocity, mode) to its sink at
+``TRUTH_HZ``.
 """
 
 from __future__ import annotations
 
 import math
+import struct
 import sys
 import time
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
@@ -28,28 +33,32 @@ from aeromanip.experiment.closed_loop import RowMaker, log_columns
 from aeromanip.experiment.scenario import Scenario
 from aeromanip.interrupts import raise_if_interrupted
 from aeromanip.mavlink import frames, setpoints
-from aeromanip.mavlink.arm import MAV_CMD_DO_SET_ACTUATOR, actuator_to_joint, joint_name
-from aeromanip.mavlink.protocol import (
-    MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-    MAV_MODE_FLAG_SAFETY_ARMED,
-    MODES,
-    custom_mode,
-    load_mavutil,
-    open_link,
+from aeromanip.mavlink.protocol import load_mavutil, open_link
+from aeromanip.mavlink.sitl_commands import (
+    MAV_CMD_DO_SET_MODE,
+    SEVERITY_CRITICAL,
+    SEVERITY_INFO,
+    SEVERITY_WARNING,
+    Commands,
+    from_int,
+    from_long,
 )
-from aeromanip.mavlink.vehicle import DENIED, Event, Vehicle
+from aeromanip.mavlink.sitl_params import Parameters
+from aeromanip.mavlink.sitl_telemetry import Measurement, Status, StatusTexts, Telemetry
+from aeromanip.mavlink.vehicle import Event, Vehicle
 from aeromanip.nmpc.controller import Command
+from aeromanip.robot.spec import RobotSpec
 from aeromanip.sim.mjcf import FREE_JOINT
 from aeromanip.sim.physics import PhysicsSimulator
 
 STATE_HZ = 50.0  # [Hz] state messages
-HEARTBEAT_HZ = 2.0  # [Hz]
 TRUTH_HZ = 20.0  # [Hz] truth-log rows
-MAV_CMD_COMPONENT_ARM_DISARM = 400
-MAV_CMD_DO_SET_MODE = 176
 SYSTEM_ID = 1  # this vehicle's MAVLink system id (component 1: the autopilot)
-REFUSAL_EVERY_S = 1.0  # [s] a refusal's reason is said at most this often
 TRUTH_COLUMNS = ("wall_time", "t_mission", "vx", "vy", "vz", "speed", "armed")
+SAID = "said: "  # an event that was a STATUSTEXT of the SITL's own
+LOAD_SMOOTHING = 0.05  # the share of a new tick in the reported load
+#: setpoint messages PX4 takes and this SITL cannot fly (refused in words, no offboard signal)
+UNFLOWN = ("SET_ATTITUDE_TARGET", "SET_POSITION_TARGET_GLOBAL_INT", "SET_ACTUATOR_CONTROL_TARGET")
 
 Row = dict[str, Any]
 
@@ -61,16 +70,17 @@ class SitlAutopilot:
         self.conn = open_link(url, SYSTEM_ID, 1)  # first: a link that cannot open costs nothing
         self.m = load_mavutil().mavlink
         self.sc = sc
+        self.system_id = SYSTEM_ID
         # PX4-like: velocity + yaw-rate set-points; the arm's targets are angles (ramps)
         options = {**sc.physics, "setpoint": "velocity", "joint_setpoint": "ramp"}
         self.sim = PhysicsSimulator.from_options(sc.robot, options)
         self.sim.reset(sc.x0)
         self.tick = 1.0 / self.sim.outer_rate_hz
-        self.vehicle = Vehicle(sc.robot, sc.x0)
+        self.params = Parameters(self.conn, SYSTEM_ID, self.say)
+        self.vehicle = ParamVehicle(sc.robot, sc.x0, self.params)
         self.maker = RowMaker(sc)
         self.every = {
             "state": max(1, round(1.0 / (state_hz * self.tick))),
-            "heartbeat": max(1, round(1.0 / (HEARTBEAT_HZ * self.tick))),
             "truth": max(1, round(1.0 / (TRUTH_HZ * self.tick))),
         }
         fv = self.sim.model.jnt_dofadr[self.sim.model.joint(FREE_JOINT).id]
@@ -78,10 +88,33 @@ class SitlAutopilot:
         self._omega = self.sim.data.qvel[fv + 3 : fv + 6]  # body frame
         self.t = 0.0
         self.overruns = 0
+        self.load = 0.0  # the share of a tick spent working (smoothed)
         self._u = np.zeros(sc.robot.nx)
         self._events_seen = 0
         self._setpoint: setpoints.Setpoint | None = None  # the last one accepted
-        self._refused: dict[str, float] = {}  # reason -> when it was last said [s]
+        mav_type = self.m.MAV_TYPE_OCTOROTOR if self.sim.rotors == 8 else self.m.MAV_TYPE_QUADROTOR
+        self._meas = self._measurement(self.sim.true_state())
+        self.telemetry = Telemetry(
+            self.conn, self.m, self.tick, state_hz, mav_type, self._meas.position
+        )
+        self.texts = StatusTexts(self.conn)
+        self.commands = Commands(self)
+        self.received: Counter[str] = Counter()  # message types (commands by id) read
+        self._handlers: dict[str, Callable[[Any], None]] = (
+            {
+                "SET_POSITION_TARGET_LOCAL_NED": self._on_setpoint,
+                "COMMAND_LONG": lambda msg: self.commands.handle(from_long(msg)),
+                "COMMAND_INT": lambda msg: self.commands.handle(from_int(msg)),
+                "SET_MODE": self._on_set_mode,
+                "PING": self._on_ping,
+                "TIMESYNC": self._on_timesync,
+                "REQUEST_DATA_STREAM": lambda msg: self.say(
+                    "REQUEST_DATA_STREAM unsupported: use SET_MESSAGE_INTERVAL", SEVERITY_WARNING
+                ),
+            }
+            | {kind: self._on_unflown for kind in UNFLOWN}
+            | self.params.handlers()
+        )
 
     def run(self, sink: Callable[[Row], None], max_time_s: float | None = None) -> None:
         """Fly in real time until ``max_time_s`` [s] (or a signal: ``RunInterrupted``)."""
@@ -89,17 +122,19 @@ class SitlAutopilot:
         k = 0
         while max_time_s is None or self.t < max_time_s:
             raise_if_interrupted()
+            began = time.monotonic()
             self._receive()
             self._step()
             k += 1
-            if k % self.every["state"] == 0:
-                self._send_state()
-            if k % self.every["heartbeat"] == 0:
-                self._heartbeat()
+            if k % self.every["state"] == 0:  # a measurement (the physics' noise)
+                self._meas = self._measurement(self.sim.state())
+            self.telemetry.stream(k, self._meas, self._status())
             if k % self.every["truth"] == 0:
                 sink(self._truth_row())
             self._announce()
-            left = start + k * self.tick - time.monotonic()
+            now = time.monotonic()
+            self.load += LOAD_SMOOTHING * ((now - began) / self.tick - self.load)
+            left = start + k * self.tick - now
             if left > 0:
                 time.sleep(left)
             elif left < -0.1:  # fell behind: do not race to catch up
@@ -120,10 +155,15 @@ class SitlAutopilot:
     def _receive(self) -> None:
         while (msg := self.conn.recv_msg()) is not None:
             kind = msg.get_type()
-            if kind == "SET_POSITION_TARGET_LOCAL_NED":
-                self._on_setpoint(msg)
-            elif kind == "COMMAND_LONG":
-                self._on_command(msg)
+            self.received[f"{kind}:{msg.command}" if kind.startswith("COMMAND_") else kind] += 1
+            handler = self._handlers.get(kind)
+            if handler is None:
+                continue  # not for an autopilot (PX4 ignores it too), or not MAVLink
+            try:
+                handler(msg)
+            except (ArithmeticError, ValueError, TypeError, struct.error) as e:
+                # a field no check foresaw: the message is refused, the vehicle flies on
+                self.say(f"{msg.get_type()} refused: {type(e).__name__}", SEVERITY_CRITICAL)
 
     def _on_setpoint(self, msg: Any) -> None:
         """A ``SET_POSITION_TARGET_LOCAL_NED``, read as PX4 does (``setpoints``): kept and
@@ -156,82 +196,94 @@ class SitlAutopilot:
         """The velocity [m/s, ENU] and yaw rate [rad/s, ENU] that fly ``sp`` now."""
         position, velocity, yaw = self._pose_ned()
         v, rate = setpoints.velocity_and_yaw_rate(sp, position, velocity, yaw, self.tick)
+        v, rate = self._limited(v, rate)
         return frames.ned_to_enu(v), frames.yaw_rate_ned_to_enu(rate)
 
+    def _limited(self, v: setpoints.Vec3, rate: float) -> tuple[setpoints.Vec3, float]:
+        """Velocity [m/s, NED] and yaw rate [rad/s] within the parameters' limits (PX4
+        ``PositionControl.cpp`` L133-137: PX4 lets the position loop's share go first,
+        here the horizontal sum is scaled)."""
+        p = self.params
+        horizontal, limit = math.hypot(v[0], v[1]), p["MPC_XY_VEL_MAX"]
+        scale = limit / horizontal if horizontal > limit else 1.0
+        down = min(max(v[2], -p["MPC_Z_VEL_MAX_UP"]), p["MPC_Z_VEL_MAX_DN"])
+        most = math.radians(p["MC_YAWRATE_MAX"])
+        return (scale * v[0], scale * v[1], down), min(max(rate, -most), most)
+
     def _refuse(self, reason: str, severity: int | None = None) -> None:
-        """Say why a message is ignored: a STATUSTEXT (critical unless ``severity``; and
-        the SITL's stderr), once a second per reason at most."""
-        if self.t - self._refused.get(reason, -math.inf) < REFUSAL_EVERY_S:
+        """Say why a message is ignored (critical unless ``severity``)."""
+        self.say(reason, SEVERITY_CRITICAL if severity is None else severity)
+
+    def say(self, text: str, severity: int) -> None:
+        """A STATUSTEXT (``MAV_SEVERITY``), the same text once a second at most; also an
+        event (the SITL's stderr and its summary)."""
+        if self.texts.say(self.t, text, severity):
+            self.vehicle.events.append(Event(self.t, f"{SAID}{text}"))
+
+    def _on_set_mode(self, msg: Any) -> None:
+        """The legacy ``SET_MODE``: PX4 turns it into ``DO_SET_MODE`` (``mavlink_receiver.
+        cpp`` L924-950); answered with that command's ACK."""
+        if int(msg.target_system) != self.system_id:
             return
-        self._refused[reason] = self.t
-        level = self.m.MAV_SEVERITY_CRITICAL if severity is None else severity
-        self.conn.mav.statustext_send(level, reason.encode()[:50])
-        self.vehicle.events.append(Event(self.t, f"refused: {reason}"))
+        custom = int(msg.custom_mode)
+        main, sub = (custom >> 16) & 0xFF, (custom >> 24) & 0xFF
+        result = self.commands.set_mode(float(msg.base_mode), float(main), float(sub))
+        sender = (msg.get_srcSystem(), msg.get_srcComponent())
+        self.conn.mav.command_ack_send(MAV_CMD_DO_SET_MODE, result, 0, 0, *sender)
 
-    def _on_command(self, msg: Any) -> None:
-        v, x, cmd = self.vehicle, self.sim.true_state(), int(msg.command)
-        result = self.m.MAV_RESULT_UNSUPPORTED
-        if cmd == MAV_CMD_COMPONENT_ARM_DISARM:
-            result = v.arm(self.t, msg.param1 > 0.5, x)
-        elif cmd == MAV_CMD_DO_SET_MODE:
-            result = DENIED
-            if int(msg.param1) & MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-                wanted = (int(msg.param2), int(msg.param3))
-                for name, (main, sub) in MODES.items():
-                    if wanted[0] == main and (sub == 0 or wanted[1] == sub):
-                        result = v.set_mode(self.t, name, x)
-        elif cmd == MAV_CMD_DO_SET_ACTUATOR:
-            result = self._on_actuators(msg)
-        self.conn.mav.command_ack_send(cmd, result)
+    def _on_ping(self, msg: Any) -> None:
+        """A PING request (target 0/0) echoed to its sender (PX4 L1723-1734)."""
+        if msg.target_system == 0 and msg.target_component == 0:
+            sender = (msg.get_srcSystem(), msg.get_srcComponent())
+            self.conn.mav.ping_send(int(msg.time_usec), int(msg.seq), *sender)
 
-    def _on_actuators(self, msg: Any) -> int:
-        """Joint targets from a ``DO_SET_ACTUATOR`` (``arm.py``); NaN keeps a joint's."""
-        base = 6 * int(msg.param7)
-        q = self.vehicle.q_target.copy()
-        params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6)
-        for j, value in enumerate(params):
-            i = base + j
-            if i < len(q) and math.isfinite(value):
-                joint = self.sc.robot.joints[i]
-                q[i] = actuator_to_joint(value, joint.lower, joint.upper)
-        self.vehicle.on_joints(self.t, q)
-        return self.m.MAV_RESULT_ACCEPTED
+    def _on_timesync(self, msg: Any) -> None:
+        """A TIMESYNC request (tc1 = 0): tc1 our clock [ns], ts1 echoed
+        (``mavlink_timesync.cpp`` L62-73)."""
+        if int(msg.tc1) == 0:
+            self.conn.mav.timesync_send(time.monotonic_ns(), int(msg.ts1))
 
-    def _send_state(self) -> None:
-        ms = int(1e3 * self.t) & 0xFFFFFFFF
-        x = self.sim.state()  # with the measurement noise
+    def _on_unflown(self, msg: Any) -> None:
+        """A setpoint kind PX4 flies and this SITL cannot: refused (no offboard signal)."""
+        self._refuse(f"{msg.get_type()} unsupported")
+
+    def _measurement(self, x: np.ndarray) -> Measurement:
+        """What the estimator reports of the NMPC state ``x`` (NED, FRD)."""
         spec = self.sc.robot
         pose = {"x": 0.0, "y": 0.0, "z": 0.0, "yaw": 0.0} | dict(
             zip(spec.platform.dofs, x[: spec.n_platform].tolist(), strict=True)
         )
-        north, east, down = frames.enu_to_ned((pose["x"], pose["y"], pose["z"]))
-        vn, ve, vd = frames.enu_to_ned(self._vel.tolist())
-        self.conn.mav.local_position_ned_send(ms, north, east, down, vn, ve, vd)
         extras = self.sim.extras()
-        roll, pitch, yaw = frames.attitude_enu_to_ned(extras["roll"], extras["pitch"], pose["yaw"])
-        p, q, r = frames.flu_to_frd(self._omega.tolist())
-        self.conn.mav.attitude_send(ms, roll, pitch, yaw, p, q, r)
-        for i, value in enumerate(x[spec.n_platform :].tolist()):
-            self.conn.mav.named_value_float_send(ms, joint_name(i).encode(), value)
-
-    def _heartbeat(self) -> None:
-        v = self.vehicle
-        mav_type = self.m.MAV_TYPE_OCTOROTOR if self.sim.rotors == 8 else self.m.MAV_TYPE_QUADROTOR
-        base = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (MAV_MODE_FLAG_SAFETY_ARMED if v.armed else 0)
-        status = self.m.MAV_STATE_ACTIVE if v.armed else self.m.MAV_STATE_STANDBY
-        self.conn.mav.heartbeat_send(
-            mav_type, self.m.MAV_AUTOPILOT_PX4, base, custom_mode(v.mode), status
+        return Measurement(
+            t=self.t,
+            position=frames.enu_to_ned((pose["x"], pose["y"], pose["z"])),
+            velocity=frames.enu_to_ned(self._vel.tolist()),
+            attitude=frames.attitude_enu_to_ned(extras["roll"], extras["pitch"], pose["yaw"]),
+            rates=frames.flu_to_frd(self._omega.tolist()),
+            joints=tuple(x[spec.n_platform :].tolist()),
         )
 
+    def _status(self) -> Status:
+        return Status(self.vehicle.armed, self.vehicle.mode, self.load)
+
+    def send_now(self, name: str) -> None:
+        """Send message ``name`` now, from the last measurement (``REQUEST_MESSAGE``)."""
+        self.telemetry.send(name, self._meas, self._status())
+
     def _announce(self) -> None:
-        """Print the vehicle's new events (and send a heartbeat at once on a change)."""
+        """Say the vehicle's new events (stderr, STATUSTEXT) and send a heartbeat at once
+        on a change."""
         events = self.vehicle.events
         if len(events) == self._events_seen:
             return
-        for e in events[self._events_seen :]:
-            print(f"sitl: t={e.t:.2f} s: {e.text}", file=sys.stderr, flush=True)
+        new = events[self._events_seen :]
         self._events_seen = len(events)
-        self._heartbeat()
+        for e in new:
+            print(f"sitl: t={e.t:.2f} s: {e.text.removeprefix(SAID)}", file=sys.stderr, flush=True)
+            if not e.text.startswith(SAID):  # the vehicle's own: say it too
+                self.texts.say(self.t, e.text, _severity(e.text))
+        if any(not e.text.startswith(SAID) for e in new):
+            self.send_now("HEARTBEAT")
 
     def _truth_row(self) -> Row:
         v = self.vehicle
@@ -266,3 +318,33 @@ class SitlAutopilot:
     def close(self) -> None:
         """Release the link."""
         self.conn.close()
+
+
+class ParamVehicle(Vehicle):
+    """``Vehicle`` whose offboard-loss timeout is the parameter ``COM_OF_LOSS_T``."""
+
+    def __init__(self, spec: RobotSpec, x0: np.ndarray, params: Parameters) -> None:
+        super().__init__(spec, x0)
+        self.params = params
+
+    def loss_s(self) -> float:
+        """The offboard-loss timeout now [s]."""
+        return self.params["COM_OF_LOSS_T"]
+
+    def streaming(self, t: float) -> bool:
+        """Whether setpoints arrive (the last within ``loss_s()``)."""
+        return t - self.last_sp <= self.loss_s()
+
+    def command(self, t: float, x: np.ndarray, speed: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """``Vehicle.command``, its failsafe said with this timeout."""
+        if self.mode == "offboard" and not self.streaming(t):
+            self._hold(t, x, f"failsafe: no setpoint for {self.loss_s():g} s: hold")
+        return super().command(t, x, speed)
+
+
+def _severity(event: str) -> int:
+    """The STATUSTEXT severity of a vehicle event: failsafes and refusals as PX4 says
+    them (critical), the rest informational."""
+    if event.startswith("failsafe"):
+        return SEVERITY_WARNING
+    return SEVERITY_CRITICAL if "refused" in event else SEVERITY_INFO

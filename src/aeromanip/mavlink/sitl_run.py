@@ -1,7 +1,8 @@
 """The SITL autopilot's run directory: the vehicle's truth log, streamed and staged like
 a run's (``config.toml``, ``robot.urdf``, ``robot.xml``, ``log.csv`` + ``meta.json``, then
-``summary.json`` with the events: modes, failsafes). A SITL killed outright leaves its
-staging directory (``DIR.partial-<pid>``) with the rows so far.
+``summary.json`` with the events: modes, failsafes, what it said; and the MAVLink
+messages it read, by type, commands by id as ``COMMAND_LONG:400``). A SITL killed
+outright leaves its staging directory (``DIR.partial-<pid>``) with the rows so far.
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ def run_sitl(
                 interrupted=stopped is not None,
                 sitl_time_s=sitl.t,
                 overruns=sitl.overruns,
+                received=dict(sorted(sitl.received.items())),
                 events=[{"t": e.t, "text": e.text} for e in sitl.vehicle.events],
             )
             write_summary(rd.staging, summary)

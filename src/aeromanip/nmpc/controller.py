@@ -41,6 +41,9 @@ class Command:
         message: why, when not ``ok``.
         iterations, solve_time_s: solver effort (all levels).
         levels: per-level reports (hierarchical) or one report (weighted).
+        force_ff: the thrust the flight controller should add [N, world] (tasks that use
+            the measured contact force: ``Task.force_feedforward``); ``None``: none.
+        observations: what the tasks logged this step (``Task.observations``).
     """
 
     u: np.ndarray
@@ -52,6 +55,8 @@ class Command:
     iterations: int
     solve_time_s: float
     levels: list[LevelReport] = field(default_factory=list)
+    force_ff: np.ndarray | None = None
+    observations: dict[str, float] = field(default_factory=dict)
 
 
 class Controller:
@@ -101,6 +106,7 @@ class Controller:
         #: the memory before the last step (``discard``): u_prev, the plan, level solutions
         self._before: tuple[np.ndarray, Any, list[np.ndarray]] | None = None
         self.strategy.reset()
+        self.problem.reset_tasks()
 
     def _vector(self, v: Any, what: str) -> np.ndarray:
         """``v`` as nx finite floats, or a ``StateError`` naming what is wrong."""
@@ -154,17 +160,25 @@ class Controller:
         self._rates = model.rates_of(z0) if model.has_response else None
         return z0[: self.nx]
 
-    def step(self, state: Any, t: float, rates: Any = None) -> Command:
+    def step(
+        self, state: Any, t: float, rates: Any = None, wrench: Any = None, attitude: Any = None
+    ) -> Command:
         """Solve the NMPC at time ``t`` [s] from ``state`` and return the command to apply.
 
         ``rates``: the measured actual rates ``dx/dt`` (used by a model with rate
-        responses; default: the last command, as if followed at once).
+        responses; default: the last command, as if followed at once). ``wrench``: the
+        wrist force/torque sensor's reading ``[f, tau]`` [N, N m, world], received like
+        the state and handed to the tasks (``Task.observe``); ``None``: no sensor.
+        ``attitude``: the platform's measured ``(roll, pitch)`` [rad], for tasks that
+        correct the NMPC's untilted kinematics with it; ``None``: not measured.
         """
         x_meas = self._vector(state, "state")
         self._before = (self.u_prev.copy(), self._plan, self._level_w)
         if isinstance(t, bool) or not isinstance(t, int | float | np.number) or not np.isfinite(t):
             raise StateError(f"t: must be a finite number of seconds, got {t!r}")
         r0 = None if rates is None else self._vector(rates, "rates")
+        tilt = None if attitude is None else tuple(float(a) for a in attitude)
+        self.problem.observe(x_meas, self._wrench(wrench), t, tilt)  # type: ignore[arg-type]
         x0 = self._start(x_meas, r0)
         tr = self.strategy.transcription
         t_plan = t + self.latency_s
@@ -195,8 +209,23 @@ class Controller:
             log.warning("t=%.3f s: solve failed (%s); %s", t, message, status)
         self.u_prev = u
         return Command(
-            u, X, U, task_costs, status, message, res.iterations, res.solve_time_s, res.levels
-        )
+            u, X, U, task_costs, status, message, res.iterations, res.solve_time_s, res.levels,
+            force_ff=self.problem.force_feedforward(X[0], X[min(1, len(X) - 1)]),
+            observations=self.problem.observations(t),
+        )  # fmt: skip
+
+    @staticmethod
+    def _wrench(wrench: Any) -> np.ndarray | None:
+        """The sensor's reading as 6 finite floats, or a ``StateError`` naming it."""
+        if wrench is None:
+            return None
+        try:
+            w = np.asarray(wrench, dtype=float).ravel()
+        except (TypeError, ValueError):
+            raise StateError(f"wrench: expected 6 numbers, got {wrench!r:.60}") from None
+        if w.shape != (6,) or not np.all(np.isfinite(w)):
+            raise StateError(f"wrench: expected 6 finite numbers [f, tau], got {w.tolist()}")
+        return w
 
     def discard(self) -> None:
         """Forget the last step's command and plan (e.g. it came too late to be flown):

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+import casadi as ca
 import numpy as np
 
 from aeromanip.errors import ConfigError
@@ -170,3 +171,73 @@ class Problem:
         if not cols:
             return np.zeros((self.horizon + 1, 0))
         return np.hstack([np.asarray(c, dtype=float).reshape(len(times), -1) for c in cols])
+
+    def reset_tasks(self) -> None:
+        """Every task forgets what it measured (a new run)."""
+        for e in self.entries:
+            e.task.reset()
+
+    def ee_of(self, x: np.ndarray) -> np.ndarray:
+        """The EE position [m, world] of a state (numbers)."""
+        return np.asarray(self.kin.ee_position(ca.DM(np.asarray(x, dtype=float)))).ravel()
+
+    def observe(
+        self,
+        x: np.ndarray,
+        wrench: np.ndarray | None,
+        t: float,
+        attitude: tuple[float, float] | None = None,
+    ) -> None:
+        """Hand this step's measured state, wrist wrench and (if measured) the platform's
+        ``(roll, pitch)`` [rad] to every task (``Task.observe``)."""
+        users = self._overriding("observe")
+        if not users:  # nothing to compute (the step's time is the solver's)
+            return
+        ee = self.ee_of(x)
+        tilted = None if attitude is None else self.ee_tilted(x, ee, *attitude)
+        for task in users:
+            task.observe(ee, wrench, t, tilted)
+
+    def _overriding(self, method: str) -> list[Task]:
+        """The tasks that override ``Task.<method>`` (the others do nothing there)."""
+        return [
+            e.task
+            for e in self.entries
+            if getattr(type(e.task), method) is not getattr(Task, method)
+        ]
+
+    def ee_tilted(self, x: np.ndarray, ee: np.ndarray, roll: float, pitch: float) -> np.ndarray:
+        """The EE position [m, world] of state ``x`` (whose EE is ``ee``) with the platform
+        also rolled and pitched (ZYX angles [rad]): its arm swings with the base."""
+        names = self.robot.state_names
+        fixed_yaw = float(self.robot.platform.fixed.get("yaw", 0.0))
+        yaw = float(x[names.index("yaw")]) if "yaw" in names else fixed_yaw
+        body = np.asarray(self.kin.ee_position_body(ca.DM(np.asarray(x, dtype=float)))).ravel()
+        cy, sy = np.cos(yaw), np.sin(yaw)
+        rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+        cp, sp, cr, sr = np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+        ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+        rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+        return ee + rz @ (ry @ rx - np.eye(3)) @ body
+
+    def observations(self, t: float) -> dict[str, float]:
+        """Every task's logged values; a name two tasks share is prefixed ``<task>_``."""
+        out: dict[str, float] = {}
+        for e in self.entries:
+            for key, value in e.task.observations(t).items():
+                out[f"{e.name}_{key}" if key in out else key] = value
+        return out
+
+    def force_feedforward(self, x_now: np.ndarray, x_next: np.ndarray) -> np.ndarray | None:
+        """The thrust feed-forward of every task [N, world] (sum), given the plan's first
+        two states; ``None`` when no task asks for one."""
+        users = self._overriding("force_feedforward")
+        if not users:
+            return None
+        ee_now, ee_next = self.ee_of(x_now), self.ee_of(x_next)
+        forces = [
+            f
+            for task in users
+            if (f := task.force_feedforward(ee_now, ee_next, self.dt)) is not None
+        ]
+        return None if not forces else np.sum(forces, axis=0)

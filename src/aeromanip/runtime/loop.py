@@ -16,8 +16,11 @@ period late (it is skipped). Each row logs the state's age, the step's wall time
 miss and the setpoints streamed over the period before it.
 
 Endings: the mission done, or a signal (Ctrl-C): hold where the vehicle is (platform in
-place, arm still) and switch the autopilot to hold (checked); the link lost
-(``Streamer``) or the autopilot out of offboard (a pilot took over): ``LinkError``,
+place, arm still) and switch the autopilot to hold (checked). The stream stopped by the
+``Streamer`` (``LinkError`` naming why, nothing more streamed): a telemetry fault or
+stale telemetry while the link is up: the autopilot is switched to hold (checked; if it
+does not take it, its own offboard-loss failsafe acts, the stream being stopped); the
+link lost, the vehicle disarmed or out of offboard (a pilot or its failsafe took over):
 nothing more commanded.
 """
 
@@ -118,13 +121,14 @@ class RealtimeFlight:
             self._sleep_until(time.monotonic() + PRE_STREAM_S)
             self.transport.arm(COMMAND_TIMEOUT_S)
             self.transport.set_mode("offboard", COMMAND_TIMEOUT_S)
+            self.streamer.flying.set()
             self._first_step(sink)
             self._steps(sink)
             self.stats.ending = "completed"
             self._hold()
         except LinkError:
             if self.streamer.lost.is_set():
-                self._record_loss()
+                raise self._stopped() from None
             raise
         except KeyboardInterrupt:
             self.stats.ending = "interrupted"
@@ -142,6 +146,9 @@ class RealtimeFlight:
     def _first_state(self) -> Measurement:
         end = time.monotonic() + CONNECT_TIMEOUT_S
         while (m := self.reader.read()) is None:
+            if (fault := self.transport.fault()) is not None:
+                self.stats.ending = "telemetry fault"
+                raise LinkError(f"telemetry fault: {fault}; nothing commanded")
             if time.monotonic() > end:
                 raise LinkError(f"no vehicle state and joints within {CONNECT_TIMEOUT_S:g} s")
             time.sleep(0.01)
@@ -151,18 +158,32 @@ class RealtimeFlight:
         """Wait until ``deadline`` [s, monotonic], raising on link loss or a signal."""
         while True:
             if self.streamer.lost.is_set():
-                self._record_loss()
-                raise LinkError(f"link lost: no vehicle state for {self.streamer.lost_age:.2f} s")
+                raise LinkError("the setpoint stream stopped")  # fly() says why
             raise_if_interrupted()
             left = deadline - time.monotonic()
             if left <= 0:
                 return
             self.streamer.lost.wait(min(left, 0.05))
 
-    def _record_loss(self) -> None:
-        s = self.stats
-        s.link_lost, s.ending = True, "link lost"
+    def _stopped(self) -> LinkError:
+        """The stream stopped by itself: record why; after a telemetry fault or stale
+        telemetry in offboard, switch the autopilot to hold; the error to raise."""
+        s, why = self.stats, self.streamer.stop_reason
+        kind, text = (why.kind, why.text) if why is not None else ("link lost", "link lost")
+        s.ending, s.link_lost = kind, kind == "link lost"
         s.link_lost_age_s, s.link_lost_wall = self.streamer.lost_age, self.streamer.lost_wall
+        if kind in ("telemetry fault", "telemetry stale") and self.streamer.flying.is_set():
+            with deferred():
+                try:
+                    self.transport.set_mode("hold", COMMAND_TIMEOUT_S)
+                    s.hold_ack = True
+                    text += "; setpoints stopped, hold commanded and confirmed"
+                except LinkError as e:
+                    text += f"; setpoints stopped, hold not confirmed ({e}): the autopilot's "
+                    text += "offboard-loss failsafe acts"
+        elif kind in ("telemetry fault", "telemetry stale"):
+            text += "; setpoints stopped, nothing commanded (not in offboard yet)"
+        return LinkError(text)
 
     def _read(self) -> Measurement:
         if (m := self.reader.read()) is None:
@@ -202,8 +223,6 @@ class RealtimeFlight:
                 self.stats.deadline_misses += 1
                 k = math.floor((now - self.clock.at(0.0)) / dt) + 1
                 continue
-            if (mode := self.transport.mode()) != "offboard":  # e.g. the pilot took over
-                raise LinkError(f"the autopilot left offboard (now {mode}): not commanding")
             m, t = self._read(), self.clock.now()
             cmd, x, step_s = self._solve(m, now, t)
             miss = step_s > dt
@@ -249,6 +268,7 @@ class RealtimeFlight:
 
     def _hold(self) -> None:
         """Hold where the vehicle is, arm still, and switch the autopilot to hold."""
+        self.streamer.flying.clear()  # leaving offboard is now ours
         with deferred():
             m = self.reader.read()
             if m is not None:

@@ -1,18 +1,26 @@
 """The setpoint stream: a thread that, ``rate_hz`` times a second, sends the follower's
 setpoint for the latest state (velocity + yaw rate to the autopilot, joint targets to
-the arm), and watches the link.
+the arm), and watches the vehicle.
 
-Link loss: no vehicle state for ``loss_s`` [s] (the thread wakes at that deadline, so it
-notices within a few ms). It then stops commanding motion (sends nothing more: the
-autopilot's own offboard failsafe takes over), says so on stderr and sets ``lost``.
+It stops commanding motion (sends nothing more) at the first of, each noticed within a
+period (the thread wakes at the loss deadline too, so within a few ms of it):
+
+- ``telemetry fault``: the transport's ``fault()`` (a value not finite or out of range);
+- ``link lost``: no telemetry for ``loss_s`` [s] and nothing else from the vehicle since;
+- ``telemetry stale``: no telemetry for ``loss_s`` while other messages still come;
+- once ``flying`` is set (the vehicle in offboard): ``disarmed`` (its heartbeat says so)
+  or ``left offboard`` (a pilot or the autopilot's failsafe switched modes).
+
+Then ``lost`` is set and ``stop_reason`` says which and why (one line); the runtime
+decides what else to command (``loop``).
 """
 
 from __future__ import annotations
 
 import itertools
-import sys
 import threading
 import time
+from dataclasses import dataclass
 
 from aeromanip.runtime.follower import PlanFollower
 from aeromanip.runtime.measure import MissionClock, StateReader
@@ -20,14 +28,24 @@ from aeromanip.runtime.transport import ArmInterface, Setpoint, Transport
 
 STREAM_HZ = 50.0  # [Hz] setpoints per second (PX4 leaves offboard below 2 Hz)
 LINK_LOSS_S = 0.5  # [s] no vehicle state for this long: the link is lost
+LINK_MARGIN_S = 0.1  # [s] the link is up if a message came this long after the last state
+
+
+@dataclass(frozen=True)
+class StopReason:
+    """Why the stream stopped: ``kind`` (module docstring) and one line ``text``."""
+
+    kind: str
+    text: str
 
 
 class Streamer:
     """Streams setpoints on its own thread (``start``/``stop``).
 
     Attributes:
-        lost: set when the link is lost; lost_age: the state's age then [s];
-            lost_wall: ``time.time()`` then.
+        lost: set when the stream stopped by itself (``stop_reason`` says why);
+            lost_age: the state's age then [s]; lost_wall: ``time.time()`` then.
+        flying: set by the runtime while the vehicle must be armed and in offboard.
         sent: monotonic times [s] of every setpoint sent.
     """
 
@@ -47,6 +65,8 @@ class Streamer:
         self.lost = threading.Event()
         self.lost_age = float("nan")
         self.lost_wall = float("nan")
+        self.stop_reason: StopReason | None = None
+        self.flying = threading.Event()
         self.sent: list[float] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="setpoints", daemon=True)
@@ -65,11 +85,10 @@ class Streamer:
         next_send = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
-            m, st = self.reader.read(), self.transport.state()
-            stamp = st.stamp if st is not None else now
-            if now - stamp >= self.loss_s:
-                self._lose(now - stamp)
+            if (why := self._problem(now)) is not None:
+                self._halt(why, now)
                 return
+            m = self.reader.read()
             if now >= next_send and m is not None:
                 t = self.clock.now()
                 sp = self.follower.setpoint(t, m.predicted(now))
@@ -79,17 +98,33 @@ class Streamer:
                     self.arm.send(joints)
                     self.sent.append(now)
                 next_send = max(next_send + self.period, now)
-            self._stop.wait(max(0.0, min(next_send, stamp + self.loss_s) - time.monotonic()))
+            age, _ = self.transport.telemetry_age(now)
+            self._stop.wait(max(0.0, min(next_send, now + self.loss_s - age) - time.monotonic()))
 
-    def _lose(self, age: float) -> None:
-        self.lost_age, self.lost_wall = age, time.time()
+    def _problem(self, now: float) -> StopReason | None:
+        """Why the stream must stop now (module docstring), or ``None``."""
+        tr = self.transport
+        if (fault := tr.fault()) is not None:
+            return StopReason("telemetry fault", f"telemetry fault: {fault}")
+        age, what = tr.telemetry_age(now)
+        if age >= self.loss_s:
+            if tr.link_silence(now) < age - LINK_MARGIN_S:
+                text = f"telemetry stale: no {what} for {age:.2f} s (the link is up)"
+                return StopReason("telemetry stale", text)
+            return StopReason("link lost", f"link lost: no vehicle state for {age:.2f} s")
+        if self.flying.is_set():
+            if not tr.is_armed():
+                text = "the vehicle disarmed in flight (a kill switch or its failsafe)"
+                return StopReason("disarmed", f"{text}: not commanding")
+            if (mode := tr.mode()) != "offboard":
+                text = f"the autopilot left offboard (now {mode}): not commanding"
+                return StopReason("left offboard", text)
+        return None
+
+    def _halt(self, why: StopReason, now: float) -> None:
+        self.lost_age, self.lost_wall = self.transport.telemetry_age(now)[0], time.time()
+        self.stop_reason = why
         self.lost.set()
-        print(
-            f"aeromanip: link lost: no vehicle state for {age:.2f} s; "
-            "no more setpoints (the autopilot's failsafe takes over)",
-            file=sys.stderr,
-            flush=True,
-        )
 
     def rate_between(self, t0: float, t1: float) -> tuple[int, float]:
         """Setpoints sent in ``[t0, t1)`` [s, monotonic] and the longest gap between

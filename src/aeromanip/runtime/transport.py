@@ -90,6 +90,26 @@ class Transport(ABC):
     def close(self) -> None:
         """Stop receiving and release the link (idempotent)."""
 
+    def fault(self) -> str | None:
+        """What the vehicle reported that cannot be flown on (a value not finite or out of
+        range, its clock running ahead), as one line; ``None`` if nothing. Once set it
+        stays."""
+        return None
+
+    def telemetry_age(self, now: float) -> tuple[float, str]:
+        """The age [s] at ``now`` of the oldest telemetry the state needs, and its name
+        (by default: of the state)."""
+        st = self.state()
+        return (now - st.stamp if st is not None else 0.0), "vehicle state"
+
+    def link_silence(self, now: float) -> float:
+        """How long [s] at ``now`` nothing at all has come from the vehicle."""
+        return self.telemetry_age(now)[0]
+
+    def is_armed(self) -> bool:
+        """Whether the vehicle says it is armed (its last heartbeat)."""
+        return True
+
 
 class ArmInterface(ABC):
     """The arm's joints: targets out, measured positions in (a bus of its own, e.g.

@@ -59,6 +59,16 @@ class Simulator(ABC):
     def advance(self, u: np.ndarray, plan_x: np.ndarray, dt: float) -> None:
         """Apply command ``u`` (dx/dt) over ``dt`` [s]; ``plan_x`` (N+1, nx) is the plan."""
 
+    def measured_attitude(self) -> tuple[float, float] | None:
+        """The platform's measured ``(roll, pitch)`` [rad] now; ``None``: not simulated."""
+        return None
+
+    def set_force_feedforward(self, force: np.ndarray) -> None:
+        """The thrust [N, world] the flight controller adds to its position loop's from
+        now on (an acceleration feed-forward, as PX4's offboard setpoints carry); a
+        simulator without a flight controller ignores it."""
+        return None
+
     @abstractmethod
     def state(self) -> np.ndarray:
         """The NMPC state as measured now (possibly noisy)."""

@@ -18,6 +18,16 @@ collides with anything. A contact's friction is the surface's (MuJoCo takes the 
 the two geoms' coefficients: the probe's are 0); the probe has no mass. It hangs from the
 last link through a massless body whose site carries MuJoCo ``force``/``torque`` sensors:
 the wrist force/torque sensor.
+
+A compliant probe (``physics.probe``, ``ProbeSpring``) puts the sphere on a spring-loaded
+slide instead, as on inspection UAMs::
+
+    probe = { stiffness = 150.0, damping = 3.0, travel = 0.04, axis = [0.0, 0.0, -1.0] }
+
+``axis`` (end-effector frame, normalised) is where the tip points; pushed, the tip slides
+back along it against the spring [N/m] and damper [N s/m], up to ``travel`` [m] (a hard
+stop). At rest the sphere is centred on the EE frame. The tip body has ``mass`` [kg]
+(default ``PROBE_MASS``: a slide needs one); the sensor measures through the spring.
 """
 
 from __future__ import annotations
@@ -43,6 +53,49 @@ PROBE_GEOM = "ee_probe"
 SENSOR_SITE = "ee_ft"
 FORCE_SENSOR, TORQUE_SENSOR = "ee_force", "ee_torque"
 CEILING_NORMAL = (0.0, 0.0, -1.0)
+PROBE_KEYS = ("stiffness", "damping", "travel", "axis", "mass")
+PROBE_SLIDE = "ee_probe_slide"
+PROBE_TIP_BODY = "ee_probe_tip"
+PROBE_MASS = 0.01  # [kg] the spring-loaded tip's mass
+PROBE_AXIS = (0.0, 0.0, -1.0)  # EE frame: the tool axis of an arm hanging down
+MAX_PROBE_STIFFNESS = 1e5  # [N/m]
+MAX_PROBE_TRAVEL = 0.2  # [m]
+
+
+@dataclass(frozen=True)
+class ProbeSpring:
+    """A spring-loaded probe tip: ``stiffness`` [N/m], ``damping`` [N s/m], ``travel``
+    [m] before the hard stop, ``axis`` (EE frame, unit) where the tip points, tip ``mass``
+    [kg]."""
+
+    stiffness: float
+    damping: float
+    travel: float
+    axis: tuple[float, float, float] = PROBE_AXIS
+    mass: float = PROBE_MASS
+
+
+def read_probe(table: Any, path: str = "physics.probe") -> ProbeSpring:
+    """The ``physics.probe`` table checked (every error names its key)."""
+    if not isinstance(table, Mapping):
+        raise ConfigError(f"{path}: must be a table, got {table!r}")
+    for key in table:
+        if key not in PROBE_KEYS:
+            raise ConfigError(f"{path}.{key}: unknown key (choose from {PROBE_KEYS})")
+    for key in ("stiffness", "travel"):
+        if key not in table:
+            raise ConfigError(f"{path}.{key}: missing (a compliant probe needs stiffness, travel)")
+    axis = _vector(table.get("axis", PROBE_AXIS), f"{path}.axis", 3)
+    length = math.sqrt(sum(c * c for c in axis))
+    if length < 1e-9:
+        raise ConfigError(f"{path}.axis: must not be zero, got {list(axis)}")
+    return ProbeSpring(
+        stiffness=_scalar(table["stiffness"], f"{path}.stiffness", 0.0, MAX_PROBE_STIFFNESS, True),
+        damping=_scalar(table.get("damping", 0.0), f"{path}.damping", 0.0, MAX_PROBE_STIFFNESS),
+        travel=_scalar(table["travel"], f"{path}.travel", 0.0, MAX_PROBE_TRAVEL, True),
+        axis=tuple(c / length for c in axis),  # type: ignore[arg-type]
+        mass=_scalar(table.get("mass", PROBE_MASS), f"{path}.mass", 0.0, 1.0, True),
+    )
 
 
 @dataclass(frozen=True)
@@ -164,15 +217,34 @@ def surface_geoms(surfaces: Sequence[Surface]) -> list[str]:
     return lines
 
 
-def probe_body(indent: str, pos: str, quat: str, radius: float) -> list[str]:
+def probe_body(
+    indent: str, pos: str, quat: str, radius: float, spring: ProbeSpring | None = None
+) -> list[str]:
     """MJCF lines of the probe: a massless body welded to the last link at the EE frame
-    (``pos``, ``quat`` as MJCF text), holding the contact sphere and the sensor site."""
-    return [
-        f'{indent}<body name="{PROBE_BODY}" pos="{pos}" quat="{quat}">',
+    (``pos``, ``quat`` as MJCF text), holding the contact sphere and the sensor site; with
+    ``spring``, those two sit on a tip body sliding back along the probe's axis."""
+    tip = [
         f'{indent}  <site name="{SENSOR_SITE}" size="0.005"/>',
         f'{indent}  <geom name="{PROBE_GEOM}" type="sphere" size="{_f(radius)}" '
         'contype="1" conaffinity="0" condim="3" mass="0" friction="0 0 0" '
         'rgba="0.1 0.8 0.2 1"/>',
+    ]
+    if spring is not None:
+        back = tuple(-c for c in spring.axis)  # positive joint travel: the tip pushed in
+        inertia = 0.4 * spring.mass * radius * radius
+        tip = [
+            f'{indent}  <body name="{PROBE_TIP_BODY}">',
+            f'{indent}    <joint name="{PROBE_SLIDE}" type="slide" axis="{_v(back)}" '
+            f'limited="true" range="0 {_f(spring.travel)}" stiffness="{_f(spring.stiffness)}" '
+            f'damping="{_f(spring.damping)}"/>',
+            f'{indent}    <inertial pos="0 0 0" mass="{_f(spring.mass)}" '
+            f'diaginertia="{_v((inertia, inertia, inertia))}"/>',
+            *(["  " + line for line in tip]),
+            f"{indent}  </body>",
+        ]
+    return [
+        f'{indent}<body name="{PROBE_BODY}" pos="{pos}" quat="{quat}">',
+        *tip,
         f"{indent}</body>",
     ]
 

@@ -189,6 +189,8 @@ class FlightController:
         F: thrust-vector set-point of the last outer tick [N, world].
         thrust: collective thrust [N]; torque: body torque [N m]; motors: rotor thrusts [N].
         i_vel: velocity integrator [m/s^2]; i_rate: rate integrator [rad/s^2].
+        a_ff: acceleration feed-forward added to the velocity loop's output [m/s^2, world]
+            (e.g. a contact force's balance over the mass); zero after ``reset``.
     """
 
     def __init__(
@@ -239,6 +241,7 @@ class FlightController:
         """
         g = self.gains
         self.i_vel: Vec3 = (0.0, 0.0, 0.0)
+        self.a_ff: Vec3 = (0.0, 0.0, 0.0)
         trim = self.J_inv @ np.asarray(torque_trim, dtype=float)
         self.i_rate: Vec3 = _vec3(np.clip(trim, -g.rate_i_max, g.rate_i_max))
         self._v_prev: Vec3 | None = None
@@ -318,7 +321,9 @@ class FlightController:
         self._v_prev = (vx, vy, vz)
         (kx, ky, kz), (ix, iy, iz) = self._kp_vel, self.i_vel
         (dgx, dgy, dgz), (jx, jy, jz), lim = self._kd_vel, self._ki_vel, g.vel_i_max
+        fax, fay, faz = self.a_ff
         ax, ay, az = kx * ex + ix - dgx * dx, ky * ey + iy - dgy * dy, kz * ez + iz - dgz * dz
+        ax, ay, az = ax + fax, ay + fay, az + faz
         self.i_vel = (
             min(max(ix + jx * ex * dt, -lim), lim),
             min(max(iy + jy * ey * dt, -lim), lim),

@@ -43,7 +43,14 @@ import numpy as np
 from aeromanip.errors import ConfigError
 from aeromanip.robot.spec import PLATFORM_DOFS, Inertial, RobotSpec
 from aeromanip.sim.base import GRAVITY
-from aeromanip.sim.contact import PROBE_RADIUS, Surface, probe_body, sensors, surface_geoms
+from aeromanip.sim.contact import (
+    PROBE_RADIUS,
+    ProbeSpring,
+    Surface,
+    probe_body,
+    sensors,
+    surface_geoms,
+)
 from aeromanip.sim.flight_controller import rotor_layout
 
 K_M = 0.016  # [m] rotor reaction torque per newton of thrust
@@ -164,6 +171,7 @@ def robot_to_mjcf(
     servo_damping: float = SERVO_DAMPING,
     surfaces: Sequence[Surface] = (),
     probe_radius: float = PROBE_RADIUS,
+    probe: ProbeSpring | None = None,
 ) -> str:
     """MJCF text of the UAM ``spec`` with ``rotors`` thrust actuators (default: the
     platform's, flat or in coaxial pairs as it says) and one servo per joint.
@@ -172,7 +180,8 @@ def robot_to_mjcf(
     (z = 1 m unless z is fixed) and a ``hover`` keyframe holds every rotor at ``m g / n``.
     With ``surfaces`` (``sim.contact``), contacts are on (elliptic friction cones) between
     them and a probe sphere of ``probe_radius`` [m] at the end effector, which carries a
-    force/torque sensor; without, the model has no contacts, probe or sensor.
+    force/torque sensor (spring-loaded with ``probe``: ``contact.ProbeSpring``); without,
+    the model has no contacts, probe or sensor.
     """
     rotors = spec.platform.rotors if rotors is None else rotors
     if isinstance(rotors, bool) or not isinstance(rotors, int) or rotors < 4 or rotors % 2:
@@ -190,7 +199,7 @@ def robot_to_mjcf(
         '    <geom name="ground" type="plane" size="20 20 0.1" material="grid"/>',
         *surface_geoms(surfaces),
         *_platform(spec, positions, spins, start, fixed["yaw"]),
-        *_arm(spec, probe_radius if surfaces else None),
+        *_arm(spec, probe_radius if surfaces else None, probe),
         "    </body>",
         "  </worldbody>",
         *_actuators(spec, spins, max_rotor_thrust(spec, rotors), gains),
@@ -266,7 +275,9 @@ def _platform(
     return lines
 
 
-def _arm(spec: RobotSpec, probe_radius: float | None = None) -> list[str]:
+def _arm(
+    spec: RobotSpec, probe_radius: float | None = None, probe: ProbeSpring | None = None
+) -> list[str]:
     """The mount and the chain of link bodies with their hinges, ending in the EE site
     (and, with ``probe_radius``, the contact probe there: ``contact.probe_body``)."""
     indent = "      "
@@ -297,7 +308,7 @@ def _arm(spec: RobotSpec, probe_radius: float | None = None) -> list[str]:
         f'quat="{_quat(spec.ee_rpy)}" size="0.015" rgba="1 0.1 0.1 1" group="1"/>'
     )
     if probe_radius is not None:
-        lines += probe_body(indent + "  ", _v(spec.ee_xyz), _quat(spec.ee_rpy), probe_radius)
+        lines += probe_body(indent + "  ", _v(spec.ee_xyz), _quat(spec.ee_rpy), probe_radius, probe)
     return lines + closing
 
 

@@ -41,7 +41,14 @@ from aeromanip.config import check_range
 from aeromanip.errors import ConfigError, StateError
 from aeromanip.robot.spec import PLATFORM_DOFS, RobotSpec
 from aeromanip.sim.base import SIMULATORS, Simulator
-from aeromanip.sim.contact import PROBE_RADIUS, Surface, read_probe_radius, read_surfaces
+from aeromanip.sim.contact import (
+    PROBE_RADIUS,
+    ProbeSpring,
+    Surface,
+    read_probe,
+    read_probe_radius,
+    read_surfaces,
+)
 from aeromanip.sim.contact_sensor import CONTACT_COLUMNS, ContactSensor
 from aeromanip.sim.feedback import FeedbackNoise
 from aeromanip.sim.flight_controller import FlightController, FlightGains, Mixer, rotor_layout
@@ -51,7 +58,7 @@ from aeromanip.sim.mujoco_import import mujoco
 NOISE_KEYS = ("position", "yaw", "joints", "filter", "force", "torque")
 OPTION_KEYS = (
     "rate_hz", "outer_rate_hz", "rotors", "seed", "noise", "gains", "servo_hz", "servo_i",
-    "setpoint", "joint_setpoint", "surfaces", "probe_radius",
+    "setpoint", "joint_setpoint", "surfaces", "probe_radius", "probe",
 )  # fmt: skip
 SETPOINTS = ("position", "velocity")  # what a command sets in the flight controller
 # where each servo's ramp starts: the plan's first state, or where the last ramp ended
@@ -112,6 +119,8 @@ class PhysicsSimulator(Simulator):
             contact and its wrist force/torque sensor (noise ``"force"`` [N], ``"torque"``
             [N m] per axis) are read every control step (``measured_wrench``, ``extras``).
         probe_radius: radius of the end effector's contact sphere [m].
+        probe: a spring-loaded probe (``sim.contact``: the ``physics.probe`` table or a
+            ``ProbeSpring``); ``None``: the sphere is rigid on the end effector.
 
     Attributes:
         model, data: the MuJoCo model and data (open ``to_xml()`` in ``mujoco.viewer``).
@@ -138,6 +147,7 @@ class PhysicsSimulator(Simulator):
         joint_setpoint: str = JOINT_SETPOINTS[0],
         surfaces: Sequence[Mapping[str, Any] | Surface] = (),
         probe_radius: float = PROBE_RADIUS,
+        probe: Mapping[str, Any] | ProbeSpring | None = None,
     ) -> None:
         self.spec = spec
         for key, value, allowed in (
@@ -159,6 +169,7 @@ class PhysicsSimulator(Simulator):
             servo_hz=servo_hz,
             surfaces=self.surfaces,
             probe_radius=read_probe_radius(probe_radius),
+            probe=read_probe(probe) if isinstance(probe, Mapping) else probe,
         )
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
@@ -268,6 +279,8 @@ class PhysicsSimulator(Simulator):
                 read_surfaces(value)
             if key == "probe_radius":
                 read_probe_radius(value)
+            if key == "probe":
+                read_probe(value)
             if key in ("rotors", "seed") and (
                 isinstance(value, bool) or not isinstance(value, int)
             ):
@@ -459,6 +472,19 @@ class PhysicsSimulator(Simulator):
         if self.contact is not None:  # at this instant, as the state
             out.update(self.contact.read(self.time).columns())
         return out
+
+    def measured_attitude(self) -> tuple[float, float] | None:
+        """The base's ``(roll, pitch)`` [rad] now, as an autopilot's attitude estimate
+        gives them (exact here: no attitude noise is simulated)."""
+        return self._roll_pitch()
+
+    def set_force_feedforward(self, force: np.ndarray) -> None:
+        """The thrust [N, world] added to the position loop's (as an acceleration
+        feed-forward, over the total mass) until the next call or ``reset``."""
+        f = np.asarray(force, dtype=float).ravel()
+        if f.shape != (3,) or not np.all(np.isfinite(f)):
+            raise StateError(f"force feed-forward: expected 3 finite numbers, got {f.tolist()}")
+        self.controller.a_ff = (f[0] / self.mass, f[1] / self.mass, f[2] / self.mass)
 
     def measured_wrench(self) -> np.ndarray | None:
         """The wrist sensor's reading now, with its noise: ``[f (3), tau (3)]`` [N, N m],

@@ -88,6 +88,37 @@ class Task(ABC):
         """Stage parameters at absolute ``times`` [s]: array (len(times), param_size)."""
         return np.zeros((len(times), self.param_size))
 
+    # Measurements: a task may use what is measured each control step beside the state
+    # (the wrist force/torque sensor); by default it uses none.
+
+    def reset(self) -> None:
+        """Forget what was measured (a new run)."""
+        return None
+
+    def observe(
+        self,
+        ee: np.ndarray,
+        wrench: np.ndarray | None,
+        t: float,
+        ee_tilted: np.ndarray | None = None,
+    ) -> None:
+        """This step's measurements at ``t`` [s], before the solve: ``ee``, the EE position
+        of the measured state [m, world] (the NMPC's kinematics: no roll, pitch); the wrist
+        wrench ``[f, tau]`` [N, N m, world] (``None``: no sensor); ``ee_tilted``, the EE
+        with the measured roll and pitch too (``None``: not measured)."""
+        return None
+
+    def observations(self, t: float) -> dict[str, float]:
+        """Values to log each step (name: value); the keys are the same every step."""
+        return {}
+
+    def force_feedforward(
+        self, ee_now: np.ndarray, ee_next: np.ndarray, dt: float
+    ) -> np.ndarray | None:
+        """The thrust [N, world] the flight controller should add for this task, given the
+        plan's EE position now and one step ``dt`` [s] later [m]; ``None``: none."""
+        return None
+
     @classmethod
     def from_table(cls, table: Table, reference: Reference) -> Task:
         """Build from a scenario's ``[tasks.NAME]`` table (its own options only: the

@@ -103,14 +103,23 @@ class ContactSpring:
         n = ca.DM(self.normal)
         return ca.dot(n, ca.DM(self.rest_point()) - p)
 
-    def normal_force(self, p: Any) -> Any:
-        """``f_n = k softplus_s(d)`` [N] (CasADi expression, or a number for a numeric
-        ``p``). Written ``max(d, 0) + s log(1 + exp(-|d| / s))``: no overflow."""
-        numeric = not isinstance(p, ca.SX | ca.MX)
-        d = self.penetration(ca.DM(np.asarray(p, dtype=float)) if numeric else p)
+    def normal_force(self, p: Any, offset: Any = 0.0) -> Any:
+        """``f_n = k softplus_s(d - offset)`` [N] (CasADi expression, or a number for a
+        numeric ``p``); ``offset`` [m] moves the rest point further in, on top of
+        ``rest_offset`` (e.g. an estimate's: a number or a symbol). Written
+        ``max(d, 0) + s log(1 + exp(-|d| / s))``: no overflow."""
+        symbolic = isinstance(p, ca.SX | ca.MX)
+        numeric = not symbolic and not isinstance(offset, ca.SX | ca.MX)
+        d = self.penetration(p if symbolic else ca.DM(np.asarray(p, dtype=float))) - offset
         s = self.smoothing
         f = self.stiffness * (ca.fmax(d, 0) + s * ca.log1p(ca.exp(-ca.fabs(d) / s)))
         return float(f) if numeric else f
+
+    def penetration_of_force(self, force: float) -> float:
+        """The ``d`` [m] at which the spring pushes ``force`` [N] (> 0): softplus inverted."""
+        s = self.smoothing
+        y = force / (self.stiffness * s)
+        return s * (y + math.log(-math.expm1(-y)))  # s log(exp(y) - 1), no overflow
 
     def tangent_projector(self) -> np.ndarray:
         """``I - n n^T`` (3 x 3): a vector's part in the surface's plane."""

@@ -1,0 +1,65 @@
+"""The built-in contact-wall scenario in closed loop (MuJoCo physics, sensor noise on):
+the set force held through a press and a slide, its metrics computed again from the
+log, and a contact lost off the wall's edge: the push stays bounded, the loss is logged."""
+
+import numpy as np
+import pytest
+
+from aeromanip.experiment.contact_plots import plot_contact
+from aeromanip.experiment.runlog import RunLog, read_summary
+from aeromanip.experiment.runner import run_scenarios
+from aeromanip.experiment.scenario import load_scenarios
+
+# a wall that ends at y = 0.1 m: the slide (y from 0 to 0.3 m) runs off its edge at ~11 s
+SHORT_WALL = (
+    'physics.surfaces=[{kind = "wall", point = [0.3, -0.15, 0.6], normal = [-1.0, 0.0, 0.0],'
+    " size = [0.5, 0.4], friction = 0.3}]"
+)
+
+
+def _fly(tmp_path, overrides):
+    scenarios = load_scenarios("contact-wall", overrides, only="cog")
+    run_scenarios(scenarios, tmp_path, progress=False, figures=False)
+    return read_summary(tmp_path / "cog" / "summary.json"), RunLog.load(tmp_path / "cog")
+
+
+def test_the_set_force_is_held_through_the_press_and_the_slide(tmp_path):
+    """12 s: approach, 2 N set from 7 s, sliding from 8 s; the set phase is 8-12 s."""
+    s, log = _fly(tmp_path, ["duration=12"])
+    assert s["solver_failures"] == 0 and s["max_bound_violation"] == 0.0
+    assert s["force_set_s"] == pytest.approx([8.0, 11.9])
+    assert s["force_rmse_n"] <= 0.2 and s["force_contact_share"] >= 0.98
+    assert s["f_n_first_touch_peak_n"] <= 3 * 2.0
+    assert s["ee_tangential_rmse_m"] <= 0.005 and s["roll_pitch_max_deg"] <= 5.0
+    c = log.columns  # the metrics again, from the logged columns
+    held = (c["t"] >= 8.0 - 1e-9) & (c["f_ref"] == 2.0)
+    assert held.sum() == 40
+    rmse = np.sqrt(np.mean((c["f_n"][held] - 2.0) ** 2))
+    assert s["force_rmse_n"] == pytest.approx(rmse, rel=1e-12)
+    tangential = np.hypot(c["ee_y"] - c["ref_y"], c["ee_z"] - c["ref_z"])[held]
+    assert s["ee_tangential_rmse_m"] == pytest.approx(np.sqrt(np.mean(tangential**2)))
+    # the sensor's reading (with its noise) agrees with the true force along the normal
+    np.testing.assert_allclose(-c["f_x"][held], c["f_n"][held], atol=0.25)
+    (figure,) = plot_contact(log, tmp_path / "figures")
+    assert figure.name == "contact_force.png" and figure.stat().st_size > 10_000
+
+
+def test_a_contact_lost_off_the_edge_is_logged_and_the_push_stays_bounded(tmp_path):
+    """Off the edge the probe feels nothing: the feed-forward goes off, the contact is
+    declared lost after 0.5 s and the set force dropped; the platform, tilted to push
+    2 N, throws the EE past the face as its tilt unwinds (11 cm measured), then the EE
+    comes back to the wall's plane and nothing is pushed again."""
+    s, log = _fly(tmp_path, ["duration=16", SHORT_WALL])
+    c = log.columns
+    last_touch = c["t"][np.nonzero(c["contact"] > 0)[0][-1]]
+    first_lost = c["t"][np.argmax(c["contact_lost"] > 0)]
+    assert 11.0 < last_touch < 13.0
+    assert first_lost == pytest.approx(last_touch + 0.6, abs=0.05)  # after 0.5 s unfelt
+    assert np.all(c["contact_lost"][c["t"] >= first_lost] == 1.0)  # latched: no wall there
+    after = c["t"] >= first_lost
+    assert np.all(c["f_n"][after] == 0.0) and np.all(c["f_ff"][after] == 0.0)
+    assert np.max(c["rest_offset"]) <= 0.03 + 1e-12  # the search is bounded
+    assert np.max(c["x"]) < 0.3  # the platform never crosses the face
+    assert np.max(c["ee_x"]) < 0.45  # the tilt's throw, bounded
+    assert np.all(c["ee_x"][c["t"] >= first_lost + 2.0] < 0.3)  # back, not pressing on
+    assert s["solver_failures"] == 0 and s["max_bound_violation"] == 0.0
