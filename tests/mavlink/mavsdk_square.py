@@ -79,8 +79,7 @@ async def fly_square(drone, telemetry: TelemetryAsync, seen: dict, loop) -> None
     seen["phases"]["armed"] = loop.time()
     heading = (await telemetry.attitude_euler()).yaw_deg
     await offboard.set_velocity_ned(VelocityNedYaw(0.0, 0.0, 0.0, heading))
-    await asyncio.sleep(1.2)  # PX4 takes offboard once setpoints flow (> 1 s, its docs)
-    await offboard.start()
+    await offboard.start()  # as MAVSDK's example: one setpoint, then start
     seen["phases"]["offboard"] = loop.time()
     start = (await telemetry.position_velocity_ned()).position
     for north, east in SQUARE:

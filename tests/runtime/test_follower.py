@@ -62,13 +62,14 @@ def test_measurement_predicts_along_its_rates():
     np.testing.assert_allclose(m.predicted(10.1), [1.05, 1.9])
 
 
-def test_offboard_needs_a_second_of_setpoints_and_fails_safe_after_half_a_second():
+def test_offboard_needs_a_recent_setpoint_and_fails_safe_after_half_a_second():
+    """PX4 161b530 (offboardCheck.cpp L38-66): one setpoint younger than COM_OF_LOSS_T
+    (0.5 s here) is the offboard signal; older, the switch is refused."""
     v = Vehicle(ROBOT, X0)
-    assert v.set_mode(0.0, "offboard", X0) == TEMPORARILY_REJECTED  # no stream
+    assert v.set_mode(0.0, "offboard", X0) == TEMPORARILY_REJECTED  # no setpoint
     assert v.arm(0.0, True, X0) == ACCEPTED and v.mode == "hold"
-    for k in range(25):  # 0.0 .. 0.96 s at 25 Hz
-        v.on_setpoint(0.04 * k, (0.1, 0.0, 0.0), 0.0, 0)
-    assert v.set_mode(0.97, "offboard", X0) == TEMPORARILY_REJECTED  # < 1 s of stream
+    v.on_setpoint(0.2, (0.1, 0.0, 0.0), 0.0, 0)
+    assert v.set_mode(0.71, "offboard", X0) == TEMPORARILY_REJECTED  # 0.51 s old
     v.on_setpoint(1.0, (0.1, 0.0, 0.0), 0.0, 0)
     assert v.set_mode(1.0, "offboard", X0) == ACCEPTED and v.mode == "offboard"
     u, _ = v.command(1.49, X0)

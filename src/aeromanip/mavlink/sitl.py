@@ -331,16 +331,6 @@ class ParamVehicle(Vehicle):
         """The offboard-loss timeout now [s]."""
         return self.params["COM_OF_LOSS_T"]
 
-    def streaming(self, t: float) -> bool:
-        """Whether setpoints arrive (the last within ``loss_s()``)."""
-        return t - self.last_sp <= self.loss_s()
-
-    def command(self, t: float, x: np.ndarray, speed: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """``Vehicle.command``, its failsafe said with this timeout."""
-        if self.mode == "offboard" and not self.streaming(t):
-            self._hold(t, x, f"failsafe: no setpoint for {self.loss_s():g} s: hold")
-        return super().command(t, x, speed)
-
 
 def _severity(event: str) -> int:
     """The STATUSTEXT severity of a vehicle event: failsafes and refusals as PX4 says

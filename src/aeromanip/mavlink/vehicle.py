@@ -3,10 +3,10 @@ and what the vehicle flies in each mode (PX4's behaviour, as far as this subset 
 
 - Disarmed: the vehicle is pinned at its start (the physics does not run).
   ``arm`` is accepted (the vehicle hovers in ``hold``); ``disarm`` is denied in flight.
-- ``offboard`` is accepted only while setpoints stream: for at least ``ENTRY_S`` without a
-  gap over ``LOSS_S`` (PX4: "after receiving the signal for more than a second"); else
-  ``TEMPORARILY_REJECTED``.
-- Offboard failsafe: no setpoint for ``LOSS_S`` -> ``hold`` where the vehicle is.
+- ``offboard`` is accepted while a setpoint younger than the offboard-loss timeout
+  (``loss_s``, PX4's ``COM_OF_LOSS_T``) is there, as PX4's ``offboardCheck.cpp`` L38-66
+  at ``161b530`` asks; else ``TEMPORARILY_REJECTED``.
+- Offboard failsafe: no setpoint for ``loss_s`` -> ``hold`` where the vehicle is.
 - ``hold`` (PX4's Hold, AUTO.LOITER): brake (zero velocity and yaw rate) until the speed
   is below ``BRAKED_SPEED``, then hold that position by a P loop (``HOLD_GAIN``) to
   velocity setpoints, and that yaw; the arm held at once at its last target.
@@ -25,8 +25,7 @@ import numpy as np
 from aeromanip.robot.spec import RobotSpec
 from aeromanip.sim.flight_controller import FlightGains
 
-LOSS_S = 0.5  # [s] offboard failsafe: no setpoint for this long
-ENTRY_S = 1.0  # [s] setpoints streamed this long before offboard is accepted
+LOSS_S = 0.5  # [s] offboard failsafe: no setpoint for this long (COM_OF_LOSS_T's default)
 HOLD_GAIN = FlightGains().pos_p_xy  # [1/s] the position P of hold
 BRAKED_SPEED = 0.02  # [m/s] hold brakes until the vehicle is this slow, then holds there
 EXTRAPOLATE_S = 0.1  # [s] longest ramp of a joint target past its arrival
@@ -61,7 +60,6 @@ class Vehicle:
         self.yaw_rate = 0.0
         self.mission_ms = 0
         self.last_sp = -math.inf  # when the last setpoint arrived
-        self.stream_since = math.inf  # start of the current unbroken setpoint stream
         self.q_target = self.hold_x[self.n_p :].copy()
         self.q_rate = np.zeros(spec.n_joints)
         self.q_time = -math.inf
@@ -73,8 +71,6 @@ class Vehicle:
         self, t: float, velocity: tuple[float, float, float], yaw_rate: float, mission_ms: int
     ) -> None:
         """A velocity [m/s, ENU] + yaw-rate [rad/s] setpoint arrived."""
-        if t - self.last_sp > LOSS_S:
-            self.stream_since = t
         self.velocity, self.yaw_rate, self.mission_ms = velocity, yaw_rate, mission_ms
         self.last_sp = t
 
@@ -111,7 +107,7 @@ class Vehicle:
             return ACCEPTED
         if mode != "offboard":
             return DENIED
-        if not self.streaming(t) or t - self.stream_since < ENTRY_S:
+        if not self.streaming(t):
             self._event(t, "offboard refused: no setpoint stream")
             return TEMPORARILY_REJECTED
         if self.mode != "offboard":
@@ -119,9 +115,13 @@ class Vehicle:
             self._event(t, "offboard")
         return ACCEPTED
 
+    def loss_s(self) -> float:
+        """The offboard-loss timeout [s]."""
+        return LOSS_S
+
     def streaming(self, t: float) -> bool:
-        """Whether setpoints arrive (the last within ``LOSS_S``)."""
-        return t - self.last_sp <= LOSS_S
+        """Whether setpoints arrive (the last within ``loss_s()``)."""
+        return t - self.last_sp <= self.loss_s()
 
     def _hold(self, t: float, x: np.ndarray, why: str) -> None:
         self.mode, self.braking = "hold", True
@@ -140,7 +140,7 @@ class Vehicle:
         rate, joint rates) and the start of the joint ramp (``plan_x[0]``); checks the
         offboard failsafe first."""
         if self.mode == "offboard" and not self.streaming(t):
-            self._hold(t, x, f"failsafe: no setpoint for {LOSS_S:g} s: hold")
+            self._hold(t, x, f"failsafe: no setpoint for {self.loss_s():g} s: hold")
         u, start = np.zeros(len(x)), np.asarray(x, dtype=float).copy()
         start[self.n_p :] = self.joint_reference(t)
         if self.mode == "offboard":
