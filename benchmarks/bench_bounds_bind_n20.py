@@ -6,9 +6,10 @@ hierarchical, strict) and QP model, the closed loop on the kinematic simulator: 
 median and p95 [ms], SQP iterations per step, and the closed-loop cost against IPOPT's.
 The condensed model (``qpsol = "daqp"``, the compiled loop) is built once into the
 compile cache (about 2 and 5 minutes at N = 20, 1.7 GiB in the compiler); the sparse
-one (``"hpipm"``, the default beyond ``condense_max_horizon``) in seconds.
+one (``"riccati"``, the default beyond ``condense_max_horizon``, or ``"hpipm"``) in
+seconds. ``--qp`` keeps the rows of the QP solvers named (``ipopt`` for IPOPT's).
 
-    python benchmarks/bench_bounds_bind_n20.py [out.json]
+    python benchmarks/bench_bounds_bind_n20.py [--qp ipopt,riccati,hpipm] [out.json]
 """
 
 from __future__ import annotations
@@ -35,9 +36,11 @@ SETS = [
 ROWS = [  # (strategy, backend, solver options)
     ("weighted", "ipopt", None),
     ("weighted", "sqp", {"qpsol": "daqp"}),
+    ("weighted", "sqp", {"qpsol": "riccati"}),
     ("weighted", "sqp", {"qpsol": "hpipm"}),
     ("hierarchical", "ipopt", None),
     ("hierarchical", "sqp", {"qpsol": "daqp"}),
+    ("hierarchical", "sqp", {"qpsol": "riccati"}),
     ("hierarchical", "sqp", {"qpsol": "hpipm"}),
 ]
 
@@ -72,8 +75,15 @@ def closed_loop(strategy: str, backend: str, options: dict | None) -> dict:
     }
 
 
+def _qp_name(row: tuple) -> str:
+    return (row[2] or {}).get("qpsol", row[1])
+
+
 def main(argv: list[str]) -> int:
-    rows = [closed_loop(*row) for row in ROWS]
+    keep = None
+    if argv[:1] == ["--qp"]:
+        keep, argv = set(argv[1].split(",")), argv[2:]
+    rows = [closed_loop(*row) for row in ROWS if keep is None or _qp_name(row) in keep]
     ipopt = {r["strategy"]: r for r in rows if r["backend"] == "ipopt"}
     print("| strategy | backend | QP | median ms | p95 ms | iters | cost | x IPOPT's cost |")
     print("|---|---|---|---|---|---|---|---|")
