@@ -252,3 +252,32 @@ def test_a_build_failure_is_one_warning(monkeypatch, tmp_path, caplog):
     with caplog.at_level(logging.WARNING):
         assert ocp_ipm.riccati_library() is None
     assert "building the Riccati QP solver failed" in caplog.text
+
+
+@pytest.mark.parametrize(
+    ("strategy", "backend"), [("weighted", "sqp"), ("hierarchical", "sqp-rti")]
+)
+def test_a_closed_loop_commands_as_with_hpipm(strategy, backend):
+    """The flight at N = 20 (kinematic), eight steps from rest: each command within 2e-6
+    of the same loop's with HPIPM (both interior points stop at residuals of 1e-8; the
+    loops drift apart by ~6e-8 a step)."""
+    from aeromanip.experiment.scenario import load_scenarios
+    from aeromanip.nmpc.controller import Controller
+
+    sets = ["sim='kinematic'", "controller.horizon=20", "controller.dt=0.25",
+            "controller.weights_dt=0.5", f"controller.strategy='{strategy}'",
+            "duration=3"]  # fmt: skip
+    sc = load_scenarios("flight", sets)[""]
+    hierarchy = sc.hierarchy if strategy == "hierarchical" else None
+    commands = {}
+    for qpsol in ("riccati", "hpipm"):
+        ctrl = Controller(sc.problem, strategy, backend, {"qpsol": qpsol}, hierarchy=hierarchy)
+        x, U = sc.x0.copy(), []
+        for k in range(8):
+            cmd = ctrl.step(x, k * sc.problem.dt)
+            assert cmd.status == "ok", cmd.message
+            U.append(cmd.u)
+            x = x + sc.problem.dt * cmd.u
+        commands[qpsol] = np.array(U)
+    assert np.abs(commands["riccati"]).max() > 0.05  # it flies
+    np.testing.assert_allclose(commands["riccati"], commands["hpipm"], atol=2e-6)
