@@ -38,7 +38,7 @@
 struct OcpIpm {
     int N, nx, nu, nc, ncT, nv;
     double *A, *B;           /* nx x nx, nx x nu */
-    int *col_start, *col_row; /* the nonzeros of [A B] by column: rows ... */
+    int *col_start, *col_row, *col_of; /* the nonzeros of [A B] by column: rows, columns */
     double* col_val;          /* ... and values */
     /* per stage (N + 1, sized for nv): the iterate, slacks, multipliers, masks */
     double *y, *pi, *tl, *tu, *ll, *lu;      /* y: (N+1) nv; pi: N nx; t, l: per bound */
@@ -47,7 +47,7 @@ struct OcpIpm {
     double *atl, *atu, *all, *alu;           /* the affine step's slack and multipliers */
     unsigned char *ml, *mu, *me;             /* finite lower / upper / equal, per bound */
     /* Riccati: per stage */
-    double *P, *p, *L, *K, *kff;
+    double *P, *p, *L, *K, *kff, *Pc; /* Pc: P_{k+1} rdyn_k, per iteration */
     double *M, *m, *PAB, *w, *qt, *rhat, *rdyn;
     int nb_stage; /* bounds per stage: nv box + nc rows */
     /* per solve, the nonzeros of H_k's rows and C_k's rows: column indices by row */
@@ -67,11 +67,12 @@ OcpIpm* ocp_ipm_new(int N, int nx, int nu, int nc, int ncT, const double* A, con
     s->B = malloc(sizeof(double) * nx * (nu > 0 ? nu : 1));
     s->col_start = malloc(sizeof(int) * (nv + 1));
     s->col_row = malloc(sizeof(int) * nx * nv);
+    s->col_of = malloc(sizeof(int) * nx * nv);
     s->col_val = malloc(sizeof(double) * nx * nv);
     double** vecs[] = {&s->y, &s->dy, &s->qt, &s->rhat};
     for (int i = 0; i < 4; i++) *vecs[i] = calloc(S * nv, sizeof(double));
-    double** pis[] = {&s->pi, &s->dpi, &s->rdyn, &s->p, &s->w};
-    for (int i = 0; i < 5; i++) *pis[i] = calloc(S * nx, sizeof(double));
+    double** pis[] = {&s->pi, &s->dpi, &s->rdyn, &s->p, &s->w, &s->Pc};
+    for (int i = 0; i < 6; i++) *pis[i] = calloc(S * nx, sizeof(double));
     double** bnds[] = {&s->tl, &s->tu, &s->ll, &s->lu, &s->dtl, &s->dtu, &s->dll,
                        &s->dlu, &s->atl, &s->atu, &s->all, &s->alu, &s->itl, &s->itu};
     for (int i = 0; i < 14; i++) *bnds[i] = calloc(S * nb, sizeof(double));
@@ -88,8 +89,8 @@ OcpIpm* ocp_ipm_new(int N, int nx, int nu, int nc, int ncT, const double* A, con
     s->h_col = malloc(sizeof(int) * S * nv * nv);
     s->c_ptr = malloc(sizeof(int) * S * (ncm + 1));
     s->c_col = malloc(sizeof(int) * (S * ncm * nv + 1));
-    if (!s->h_ptr || !s->h_col || !s->c_ptr || !s->c_col ||!s->A || !s->B || !s->col_start || !s->col_row || !s->col_val || !s->y || !s->dy ||
-        !s->qt || !s->rhat || !s->pi || !s->dpi || !s->rdyn || !s->p || !s->w || !s->tl ||
+    if (!s->h_ptr || !s->h_col || !s->c_ptr || !s->c_col ||!s->A || !s->B || !s->col_start || !s->col_row || !s->col_of || !s->col_val || !s->y || !s->dy ||
+        !s->qt || !s->rhat || !s->pi || !s->dpi || !s->rdyn || !s->p || !s->w || !s->Pc || !s->tl ||
         !s->tu || !s->ll || !s->lu || !s->dtl || !s->dtu || !s->dll || !s->dlu || !s->atl ||
         !s->atu || !s->all || !s->alu || !s->itl || !s->itu || !s->ml || !s->mu || !s->me || !s->P || !s->L || !s->K ||
         !s->kff || !s->M || !s->m || !s->PAB) {
@@ -103,7 +104,7 @@ OcpIpm* ocp_ipm_new(int N, int nx, int nu, int nc, int ncT, const double* A, con
         s->col_start[j] = n;
         for (int i = 0; i < nx; i++) {
             double v = j < nx ? A[i * nx + j] : B[i * nu + (j - nx)];
-            if (v != 0.0) s->col_row[n] = i, s->col_val[n++] = v;
+            if (v != 0.0) s->col_row[n] = i, s->col_of[n] = j, s->col_val[n++] = v;
         }
     }
     s->col_start[nv] = n;
@@ -112,8 +113,8 @@ OcpIpm* ocp_ipm_new(int N, int nx, int nu, int nc, int ncT, const double* A, con
 
 void ocp_ipm_free(OcpIpm* s) {
     if (!s) return;
-    void* all[] = {s->A, s->B, s->col_start, s->col_row, s->col_val, s->y, s->dy, s->qt,
-                   s->rhat, s->pi, s->dpi, s->rdyn, s->p, s->w, s->tl, s->tu, s->ll, s->lu,
+    void* all[] = {s->A, s->B, s->col_start, s->col_row, s->col_of, s->col_val, s->y, s->dy, s->qt,
+                   s->rhat, s->pi, s->dpi, s->rdyn, s->p, s->w, s->Pc, s->tl, s->tu, s->ll, s->lu,
                    s->dtl, s->dtu, s->dll, s->dlu, s->atl, s->atu, s->all, s->alu, s->itl, s->itu, s->ml,
                    s->mu, s->me, s->P, s->L, s->K, s->kff, s->M, s->m, s->PAB, s->h_ptr,
                    s->h_col, s->c_ptr, s->c_col};
@@ -348,22 +349,34 @@ static int factorize(OcpIpm* s, const Data* d) {
         }
         /* M += [A B]' P_{k+1} [A B] (lower triangle), the zeros of [A B] skipped */
         const double* Pn = s->P + (size_t)(k + 1) * nx * nx;
-        double* PAB = s->PAB;
-        for (int i = 0; i < nx; i++) {
-            const double* pi = Pn + i * nx;
-            for (int c = 0; c < nv; c++) {
-                double v = 0.0;
-                for (int q = s->col_start[c]; q < s->col_start[c + 1]; q++)
-                    v += pi[s->col_row[q]] * s->col_val[q];
-                PAB[i * nv + c] = v;
+        const double* ck = s->rdyn + k * nx;
+        double* Pck = s->Pc + k * nx;
+        int gap = 0;
+        for (int i = 0; i < nx; i++) gap |= ck[i] != 0.0;
+        memset(Pck, 0, sizeof(double) * nx);
+        if (gap) /* the dynamics' residual: zero once a full step is taken */
+            for (int j = 0; j < nx; j++) {
+                double cj = ck[j];
+                const double* row = Pn + j * nx; /* P symmetric: its rows are columns */
+                for (int i = 0; i < nx; i++) Pck[i] += row[i] * cj;
             }
+        /* PABt = (P [A B])' by the nonzeros of [A B]: each a whole row of P (= its
+         * column) scaled, then M[a][c] += [A B]'[a] . PABt[c] over c's nonzeros */
+        double* PABt = s->PAB;
+        int nnz = s->col_start[nv];
+        memset(PABt, 0, sizeof(double) * nv * nx);
+        for (int q = 0; q < nnz; q++) {
+            double v = s->col_val[q];
+            const double* Pr = Pn + s->col_row[q] * nx;
+            double* out = PABt + s->col_of[q] * nx;
+            for (int i = 0; i < nx; i++) out[i] += v * Pr[i];
         }
-        for (int a = 0; a < nv; a++)
-            for (int q = s->col_start[a]; q < s->col_start[a + 1]; q++) {
-                double v = s->col_val[q];
-                const double* pr = PAB + s->col_row[q] * nv;
-                for (int c = 0; c <= a; c++) M[a * nv + c] += v * pr[c];
-            }
+        for (int a = 0; a < nv; a++) {
+            const double* Pa = PABt + a * nx;
+            double* Ma = M + a * nv;
+            for (int q = 0; q < nnz && s->col_of[q] <= a; q++)
+                Ma[s->col_of[q]] += s->col_val[q] * Pa[s->col_row[q]];
+        }
         /* Cholesky of M_uu (lower), K = L^-1 M_ux, P_k = M_xx - K'K */
         double *Lk = s->L + (size_t)k * nu * nu, *Kk = s->K + (size_t)k * nu * nx;
         for (int i = 0; i < nu; i++)
@@ -431,9 +444,10 @@ static void solve(OcpIpm* s, const Data* d, const double* rcl, const double* rcu
             continue;
         }
         /* m = q + [A B]' (P_{k+1} c_k + p_{k+1}), c_k = rdyn_k */
-        const double *Pn = s->P + (size_t)(k + 1) * nx * nx, *pn = s->p + (k + 1) * nx;
+        const double *pn = s->p + (k + 1) * nx;
         double* w = s->w;
-        symv(Pn, s->rdyn + k * nx, pn, nx, w);
+        const double* Pck = s->Pc + k * nx;
+        for (int i = 0; i < nx; i++) w[i] = Pck[i] + pn[i];
         double* m = s->m;
         for (int c = 0; c < nv; c++) {
             double v = q[c];
