@@ -91,11 +91,11 @@ class ScriptedSparseModel(ScriptedModel, SparseQpModel):
 
 def backend(model, **opts):
     """An ``SqpBackend`` with only what ``_sqp`` reads: its options, ``model`` and no
-    compiled loop (the Python loop runs the script)."""
+    compiled loop or real-time iteration (the Python loop runs the script)."""
     sqp = object.__new__(SqpBackend)
     sqp.opts = {**DEFAULTS, "tol": 1e-8, "acceptable_tol": 1e-6, **opts}
     sqp.model = model
-    sqp.loop = None
+    sqp.loop = sqp.rti = None
     return sqp
 
 

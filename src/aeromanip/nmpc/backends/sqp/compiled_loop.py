@@ -1,6 +1,6 @@
 """The condensed model's SQP loop in compiled C: one call per solve.
 
-``condensed_loop.c`` (with ``condensed_qp.c`` and ``dense_linalg.c``) runs the loop of
+``condensed_loop.c`` (with ``condensed_qp.c``, ``dense_linalg.c``, ``model_fn.c``) runs the loop of
 ``solver.SqpBackend._sqp`` on the condensed model (``condensed_qp``) step for step: the
 model's generated Functions (already compiled by ``codegen``) are called through their C
 symbols, and the QP is solved by DAQP's C library, as CasADi's own DAQP interface calls
@@ -30,8 +30,8 @@ from aeromanip.nmpc.backends.sqp.dense_qp import CROSS_TOL, SCREEN_ROUNDS, SOLVE
 
 HERE = Path(__file__).parent
 #: the loop's C sources (compiled together) and headers
-SOURCES = ("condensed_loop.c", "condensed_qp.c", "dense_linalg.c")
-HEADERS = ("sqp_loop.h", "dense_linalg.h")
+SOURCES = ("condensed_loop.c", "condensed_qp.c", "dense_linalg.c", "model_fn.c")
+HEADERS = ("sqp_loop.h", "dense_linalg.h", "model_fn.h")
 #: the Python loop's constants the C loop takes (``Constants`` in sqp_loop.h), in order
 CONSTANTS = (
     "screen_rounds", "cross_tol", "exact_from_iteration", "armijo", "backtrack", "min_step",

@@ -78,6 +78,7 @@ from aeromanip.nmpc.backends.sqp.hpipm import check_hpipm_options
 from aeromanip.nmpc.backends.sqp.optimality import l1, violation
 from aeromanip.nmpc.backends.sqp.qp_model import Linearization, QpModel
 from aeromanip.nmpc.backends.sqp.sparse_qp import SparseQpModel
+from aeromanip.nmpc.backends.sqp.sparse_rti import CompiledRti
 from aeromanip.nmpc.transcription import Transcription
 
 DEFAULTS: dict[str, Any] = {
@@ -92,7 +93,8 @@ DEFAULTS: dict[str, Any] = {
     "rti": False,  # one QP per solve
     "codegen": True,  # compile the model Functions to C (cached on disk)
     # run the whole loop in compiled C where it applies (the condensed model with DAQP,
-    # compiled; ``compiled_loop``): same answers, a fraction of the time
+    # compiled; ``compiled_loop``), and a real-time iteration on the sparse model with the
+    # Riccati solver (``sparse_rti``): same answers, a fraction of the time
     "compiled_loop": True,
     # "gauss-newton", "exact" (made positive definite), or "auto": Gauss-Newton,
     # exact from the first shortened step or the 7th iteration of a solve on
@@ -210,11 +212,11 @@ class SqpBackend(Backend):
             self.model: QpModel = SparseQpModel(transcription, {**self.opts, "qpsol": self.qpsol})
         else:
             self.model = CondensedQpModel(transcription, {**self.opts, "qpsol": self.qpsol})
+        compiled = self.opts["compiled_loop"]
         self.loop = (
-            CompiledLoop.for_model(self.model, self.opts, LOOP_CONSTANTS)
-            if self.opts["compiled_loop"]
-            else None
+            CompiledLoop.for_model(self.model, self.opts, LOOP_CONSTANTS) if compiled else None
         )
+        self.rti = CompiledRti.for_model(self.model, self.opts) if compiled else None
         self._loop_opts = np.array(
             [self.opts[k] for k in ("max_iter", "tol", "acceptable_tol", "constr_viol_tol",
                                     "acceptable_iter", "rti")]
@@ -318,7 +320,23 @@ class SqpBackend(Backend):
         """The SQP loop (module docstring), compiled where it can be."""
         if self.loop is not None:
             return self._compiled_sqp(request)
+        if self.rti is not None:
+            return self._compiled_rti(request)
         return self._python_sqp(request)
+
+    def _compiled_rti(self, request: SolveRequest) -> NlpResult:
+        """A real-time iteration in C (``sparse_rti``): one call; a QP it did not solve is
+        taken again by the Python loop, which checks its answer."""
+        t0 = time.perf_counter()
+        assert self.rti is not None
+        p = np.ascontiguousarray(request.p, dtype=float)
+        v, _, _ = self.model.start(replace(request, p=p))
+        if not self.rti.step(v, p):
+            return self._python_sqp(request)
+        rti = self.rti
+        w, lam_g, lam_x = self.model.result(rti.v.copy(), p, rti.lam_g.copy(), rti.lam_x.copy())
+        ok = bool(np.all(np.isfinite(w)))
+        return NlpResult(w, lam_g, lam_x, rti.info.f, ok, "RTI step", 1, time.perf_counter() - t0)
 
     def _compiled_sqp(self, request: SolveRequest) -> NlpResult:
         """The loop in C (``compiled_loop``): one call."""

@@ -122,6 +122,7 @@ class SparseQpModel:
             for n, f in fs.items()
         ]
         compiled = compiled_all([*funcs, tr.stage_costs], self.opts["codegen"])  # in parallel
+        self.sources = dict(zip(names, funcs, strict=True))  # as generated: their libraries
         built = dict(zip(names, compiled[:-1], strict=True))
         tr.use_stage_costs(compiled[-1])
         self.f_stage, self.f_merit = Buffered(built["stage"]), Buffered(built["stage_merit"])
@@ -264,12 +265,13 @@ class SparseQpModel:
                 lam_c, lam_v = lam_c[self.tr.shift_g], lam_v[self.tr.shift_w]
         return np.asarray(w0, dtype=float).copy(), lam_c, lam_v
 
-    def _bounds(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def bounds(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The variables' bounds at parameters ``p`` (stage 0 pinned to the state)."""
         return self.tr.variable_bounds(p)
 
     def linearize(self, v: np.ndarray, p: np.ndarray) -> Linearization:
         """Stage residuals, rows and Jacobians; cost, gradient and ``g`` assembled."""
-        lbw, ubw = self._bounds(p)
+        lbw, ubw = self.bounds(p)
         v = np.clip(v, lbw, ubw)  # stage 0 pinned to the measured state
         Z, U, P, zN, pN = self._split(v, p)
         r, Jr, c, Jc = (a.copy() for a in self.f_stage(Z, U, P))
@@ -509,7 +511,7 @@ class SparseQpModel:
 
     def _cost_and_rows(self, v: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray]:
         """Cost and rows ``g`` at ``v`` clipped into the variable bounds."""
-        lbw, ubw = self._bounds(p)
+        lbw, ubw = self.bounds(p)
         v = np.clip(v, lbw, ubw)
         Z, U, P, zN, pN = self._split(v, p)
         f, c = (a.copy() for a in self.f_merit(Z, U, P))
@@ -520,5 +522,5 @@ class SparseQpModel:
         self, v: np.ndarray, p: np.ndarray, lam_c: np.ndarray, lam_v: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The iterate is the NLP's variable vector (stage 0 pinned); multipliers as they are."""
-        lbw, ubw = self._bounds(p)
+        lbw, ubw = self.bounds(p)
         return np.clip(v, lbw, ubw), lam_c, lam_v

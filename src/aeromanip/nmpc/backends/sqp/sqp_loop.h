@@ -8,11 +8,7 @@
 
 #include "daqp/api.h"
 #include "dense_linalg.h"
-
-typedef long long casadi_int;
-typedef int (*casadi_fn)(const double** arg, double** res, casadi_int* iw, double* w, int mem);
-typedef int (*casadi_work_fn)(casadi_int* sz_arg, casadi_int* sz_res, casadi_int* sz_iw,
-                              casadi_int* sz_w);
+#include "model_fn.h"
 
 /* the outcome of a solve (Python maps them to IPOPT-like status words) */
 enum { ST_SOLVED = 1, ST_ACCEPTABLE = 2, ST_MAX_ITER = 3, ST_INVALID = 4, ST_QP_FAILED = 5,
@@ -20,14 +16,6 @@ enum { ST_SOLVED = 1, ST_ACCEPTABLE = 2, ST_MAX_ITER = 3, ST_INVALID = 4, ST_QP_
 enum { HESS_AUTO = 0, HESS_EXACT = 1, HESS_GN = 2 };
 
 #define MAX_SIZES 16
-
-typedef struct {
-  casadi_fn f;
-  const double** arg;
-  double** res;
-  casadi_int* iw;
-  double* w;
-} Fn;
 
 /* the Python loop's constants (solver.py, dense_qp.py, convexify.py), passed by sqp_new */
 typedef struct {
@@ -71,8 +59,6 @@ typedef struct {
   double excess;
 } QpOutcome;
 
-int fn_call(Fn* fn, const double* a0, const double* a1, const double* a2, double* r0,
-            double* r1, double* r2, double* r3, double* r4);
 QpOutcome qp_solve(Sqp* s, const double* H, const double* g, const double* A,
                    const double* lba, const double* uba, const double* lbx, const double* ubx,
                    double* memory, double* d, double* lam_a, double* lam_x);
