@@ -255,7 +255,6 @@ def test_replay_draws_the_force_arrow_at_the_probe_and_a_still(contact_dir, tmp_
     """At 8 s the probe presses the wall (x = 0.3 m, normal -x): one arrow from the
     drawn probe's contact point along -x, 0.1 m per newton the sensor measured along it;
     the probe's tip drawn pushed in as logged; the still shows the wall and the arrow."""
-    import mujoco
 
     run = load_run(contact_dir)
     c = run.log.columns
