@@ -135,3 +135,19 @@ def test_the_force_task_logs_and_checks_its_options():
         NormalForce(125.0, time_constant=0.0)
     with pytest.raises(ConfigError, match=r"^force\.friction: "):
         NormalForce(125.0, friction=-0.1)
+    with pytest.raises(ConfigError, match=r"^force\.feedforward_rate: must be in \(0, 1000\]"):
+        NormalForce(125.0, feedforward_rate=0.0)
+
+
+def test_the_feedforward_rate_option_bounds_each_step():
+    """``feedforward_rate`` [N/s]: a step of ``dt`` changes the feed-forward by at most
+    rate * dt, here 1 N/s over 0.5 s steps: 0.5, 1.0, 1.5, 2.0 N for a 2 N set force."""
+    task = NormalForce(125.0, f_ref=2.0, point=(0.3, 0, 0.6), normal=tuple(N),
+                       estimate=True, feedforward=True, feedforward_rate=1.0)  # fmt: skip
+    assert task._thrust.rate == 1.0
+    levels = []
+    for t in (0.0, 0.5, 1.0, 1.5, 2.0):
+        task._thrust.feel(t, True)
+        thrust = task._thrust.thrust(2.0, N, np.zeros(3), t, 0.5)
+        levels.append(float(-thrust @ N))
+    np.testing.assert_allclose(levels, [0.5, 1.0, 1.5, 2.0, 2.0], atol=1e-12)

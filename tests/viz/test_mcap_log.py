@@ -2,6 +2,7 @@
 the logged end effector (the kinematics' own numbers) to 1e-9, every log column on /log,
 the robot description and the scene; one-line errors for runs that cannot make one."""
 
+import csv
 import json
 import math
 
@@ -202,3 +203,65 @@ def test_a_run_goes_on_without_the_viz_extra(kinematic_run, tmp_path, monkeypatc
     assert "run.mcap not written: an MCAP log needs the package 'foxglove-sdk'" in err
     assert export.export_run(tmp_path) == []  # a run stopped before its first row
     assert "no log.csv here nor in its sub-directories" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def contact_run(tmp_path_factory):
+    """contact-wall for 9 s: the approach, the touch near 7 s, 2 N held from 7 s."""
+    out = tmp_path_factory.mktemp("mcap") / "contact"
+    scenarios = load_scenarios("contact-wall", ["duration=9"], "cog")
+    run_scenarios(scenarios, out, progress=False, figures=False)
+    return out / "cog"
+
+
+def _quat_apply(q, v):
+    return rotation(q) @ np.asarray(v, dtype=float)
+
+
+def test_contact_run_mcap_has_the_forces_of_log_csv_and_the_arrow(contact_run):
+    path = write_mcap(contact_run)
+    msgs, summary, _ = read(path)
+    schemas = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+    assert schemas["/contact"] == "aeromanip.Contact"
+    assert schemas["/contact/arrow"] == "foxglove.SceneUpdate"
+    with (contact_run / "log.csv").open() as f:  # log.csv read as text, not by RunLog
+        rows = list(csv.DictReader(f))
+    stamps = [round(float(r["t"]) * 1e9) for r in rows]
+    assert [ns for ns, _ in msgs["/contact"]] == stamps
+    assert [ns for ns, _ in msgs["/contact/arrow"]] == stamps
+    meta = json.loads((contact_run / "meta.json").read_text())
+    radius = meta["probe_radius"]
+    n = np.array(meta["surfaces"][0]["normal"])
+    assert radius == 0.01 and n.tolist() == [-1.0, 0.0, 0.0]  # contact-wall's wall and probe
+    arrows = 0
+    for (_, m), (_, upd), r in zip(msgs["/contact"], msgs["/contact/arrow"], rows, strict=True):
+        f = np.array([float(r[f"f_{c}"]) for c in "xyz"])
+        assert [m["force"][c] for c in "xyz"] == f.tolist()
+        assert [m["f_n"], m["f_t"], m["f_ref"], m["contact"]] == [
+            float(r[c]) for c in ("f_n", "f_t", "f_ref", "contact")
+        ]
+        assert m["normal_force"] == pytest.approx(-f[0], abs=1e-15)  # the wall faces -x
+        (entity,) = upd.entities
+        assert entity.id == "contact_force" and entity.frame_id == "world"
+        if float(r["contact"]) == 1.0 and -f[0] > 0:
+            arrows += 1
+            (a,) = entity.arrows
+            tip = np.array([float(r[f"tip_{c}"]) for c in "xyz"])
+            tail = [a.pose.position.x, a.pose.position.y, a.pose.position.z]
+            np.testing.assert_allclose(tail, tip - radius * n, atol=1e-12)  # the contact point
+            np.testing.assert_allclose(_quat_apply(a.pose.orientation, [1, 0, 0]), n, atol=1e-12)
+            assert a.shaft_length + a.head_length == pytest.approx(0.1 * -f[0], rel=1e-12)
+        else:
+            assert not entity.arrows
+    touching = sum(float(r["contact"]) == 1.0 for r in rows)
+    assert arrows >= touching - 2 and arrows > 15  # pressing 2 N from about 7 s
+    scene = {e.id: e for e in msgs["/scene"][0][1].entities}
+    (cube,) = scene["surfaces"].cubes
+    centre = [cube.pose.position.x, cube.pose.position.y, cube.pose.position.z]
+    np.testing.assert_allclose(centre, [0.35, 0.0, 0.6], atol=1e-12)  # face at x = 0.3
+    assert [cube.size.x, cube.size.y, cube.size.z] == [1.0, 0.4, 0.1]
+    np.testing.assert_allclose(_quat_apply(cube.pose.orientation, [0, 0, 1]), n, atol=1e-12)
+    np.testing.assert_allclose(_quat_apply(cube.pose.orientation, [0, 0.2, 0]), [0, 0, 0.2],
+                               atol=1e-12)  # fmt: skip
+    layout = (contact_run / "foxglove-layout.json").read_text()
+    assert '"/contact.normal_force"' in layout and '"/contact/arrow"' in layout

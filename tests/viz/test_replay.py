@@ -3,6 +3,7 @@ and size, frames that change while the robot moves (not blank, not frozen), vari
 side; ``aeromanip run --video``; one-line errors for bad inputs."""
 
 import ctypes.util
+import dataclasses
 import os
 import subprocess
 import sys
@@ -231,3 +232,58 @@ def test_rendering_after_close_is_an_error_of_ours():
     view.close()  # idempotent
     with pytest.raises(AeromanipError, match=r"^Offscreen\.render: the renderer is closed$"):
         view.render()
+
+
+@pytest.fixture(scope="module")
+def contact_dir(tmp_path_factory):
+    """contact-wall for 9 s: pressing the wall with 2 N set from 7 s."""
+    out = tmp_path_factory.mktemp("replay") / "contact"
+    scenarios = load_scenarios("contact-wall", ["duration=9"], "cog")
+    run_scenarios(scenarios, out, progress=False, figures=False)
+    return out / "cog"
+
+
+def _arrows(scene):
+    import mujoco
+
+    geoms = [scene.geoms[i] for i in range(scene.ngeom)]
+    return [g for g in geoms if g.type == mujoco.mjtGeom.mjGEOM_ARROW]
+
+
+@needs_gl
+def test_replay_draws_the_force_arrow_at_the_probe_and_a_still(contact_dir, tmp_path):
+    """At 8 s the probe presses the wall (x = 0.3 m, normal -x): one arrow from the
+    drawn probe's contact point along -x, 0.1 m per newton the sensor measured along it;
+    the probe's tip drawn pushed in as logged; the still shows the wall and the arrow."""
+
+    run = load_run(contact_dir)
+    c = run.log.columns
+    k = int(np.argmin(np.abs(c["t"] - 8.0)))
+    assert c["contact"][k] == 1.0 and c["f_x"][k] < -1.0  # pressing
+    panel = Panel(run, 160, 120)
+    try:
+        with_arrow = panel.frame(8.0).astype(float)
+        (arrow,) = _arrows(panel.offscreen.scene)
+        probe = panel.data.geom("ee_probe")
+        tip, radius = probe.xpos.copy(), panel.model.geom("ee_probe").size[0]
+        np.testing.assert_allclose(arrow.pos, tip + np.array([radius, 0.0, 0.0]), atol=1e-6)
+        np.testing.assert_allclose(arrow.mat.reshape(3, 3)[:, 2], [-1.0, 0.0, 0.0], atol=1e-6)
+        # MuJoCo draws an arrow geom half its size[2] long (shaft to 1/3, head to 1/2)
+        assert arrow.size[2] / 2 == pytest.approx(0.1 * -c["f_x"][k], rel=1e-6)
+        # the tip drawn where the physics had it (not at the unpressed 12 mm further in)
+        logged = np.array([c["tip_x"][k], c["tip_y"][k], c["tip_z"][k]])
+        assert c["probe_travel"][k] > 0.005
+        np.testing.assert_allclose(tip, logged, atol=0.004)
+        panel.frame(3.0)  # approaching: no contact, no arrow
+        assert not _arrows(panel.offscreen.scene)
+        panel.overlays = dataclasses.replace(panel.overlays, arrows=None)
+        without = panel.frame(8.0).astype(float)
+    finally:
+        panel.close()
+    assert np.abs(with_arrow - without).sum(axis=2).astype(bool).sum() > 30  # pixels it covers
+    assert 'name="surface_1" type="box"' in run.mjcf  # the replay draws the wall from it
+    out = tmp_path / "contact.png"
+    result = replay(contact_dir, out, size=(320, 240), at=8.0)
+    assert result.path == out
+    with Image.open(out) as im:
+        assert im.size == (320, 240) and np.asarray(im).std() > 10

@@ -23,7 +23,7 @@ from aeromanip.nmpc.controller import Command, Controller
 from aeromanip.nmpc.strategies import STRATEGIES
 from aeromanip.robot.spec import PLATFORM_DOFS
 from aeromanip.sim.base import SIMULATORS, Simulator
-from aeromanip.sim.contact import read_surfaces
+from aeromanip.sim.contact import PROBE_RADIUS, read_surfaces
 
 Row = dict[str, Any]
 
@@ -78,11 +78,15 @@ def run_meta(sc: Scenario) -> dict[str, Any]:
             c.d_min for c in sc.problem.constraints if isinstance(c, Clearance)
         )
     surfaces = sc.sim_options.get("surfaces") if sc.sim == "physics" else None
-    if surfaces:  # the contact metrics' tangents
-        meta["surface_normals"] = [
-            list(s.normal)
-            for s in read_surfaces(surfaces)  # checked when built
-        ]
+    if surfaces:  # the contact metrics' tangents; the replay's and the MCAP's surfaces
+        checked = read_surfaces(surfaces)  # checked when built
+        meta["surface_normals"] = [list(s.normal) for s in checked]
+        meta["surfaces"] = [
+            {"point": list(s.point), "normal": list(s.normal), "size": list(s.size),
+             "thickness": s.thickness, "tangents": [list(t) for t in s.tangents()]}
+            for s in checked
+        ]  # fmt: skip
+        meta["probe_radius"] = float(sc.sim_options.get("probe_radius", PROBE_RADIUS))
     if (markers := sc.reference.markers()) is not None:
         meta["waypoints"] = np.asarray(markers).tolist()
     return meta

@@ -20,6 +20,7 @@ import numpy as np
 from aeromanip.sim.contact import (
     FORCE_SENSOR,
     PROBE_GEOM,
+    PROBE_SLIDE,
     SENSOR_SITE,
     TORQUE_SENSOR,
     Surface,
@@ -27,8 +28,11 @@ from aeromanip.sim.contact import (
 from aeromanip.sim.mujoco_import import mujoco
 
 #: log columns of a run with surfaces: the measured force (world), the true normal and
-#: tangential contact forces and the contact flag (1 in contact)
-CONTACT_COLUMNS = ("f_x", "f_y", "f_z", "f_n", "f_t", "contact")
+#: tangential contact forces, the contact flag (1 in contact), the probe sphere's centre
+#: (world) and the compliant probe's travel (0 for a rigid one)
+CONTACT_COLUMNS = (
+    "f_x", "f_y", "f_z", "f_n", "f_t", "contact", "tip_x", "tip_y", "tip_z", "probe_travel",
+)  # fmt: skip
 FORCE_NOISE_SEED = 0xF0  # the sensor noise generator's stream, beside the state noise's
 
 
@@ -40,7 +44,9 @@ class ContactReading:
     ``contact_force``: the true total contact force on the probe [N], world frame;
     ``normal_force``, ``tangential_force``: its components at the contact [N];
     ``in_contact``: whether the probe touches a surface; ``surface``: which one (0-based
-    index in the scenario's list, -1 if none).
+    index in the scenario's list, -1 if none); ``tip``: the probe sphere's centre [m],
+    world frame (true); ``travel``: how far the compliant probe's tip is pushed in [m]
+    (0 for a rigid probe).
     """
 
     force: np.ndarray
@@ -50,6 +56,8 @@ class ContactReading:
     tangential_force: float
     in_contact: bool
     surface: int
+    tip: np.ndarray
+    travel: float
 
     def columns(self) -> dict[str, float]:
         """The values of ``CONTACT_COLUMNS``."""
@@ -61,6 +69,10 @@ class ContactReading:
             "f_n": self.normal_force,
             "f_t": self.tangential_force,
             "contact": 1.0 if self.in_contact else 0.0,
+            "tip_x": float(self.tip[0]),
+            "tip_y": float(self.tip[1]),
+            "tip_z": float(self.tip[2]),
+            "probe_travel": self.travel,
         }
 
 
@@ -88,6 +100,8 @@ class ContactSensor:
         self.probe = model.geom(PROBE_GEOM).id
         self.surface_ids = {model.geom(f"surface_{i + 1}").id: i for i in range(len(surfaces))}
         self.site = model.site(SENSOR_SITE).id
+        slide = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, PROBE_SLIDE)
+        self.slide_adr = int(model.jnt_qposadr[slide]) if slide >= 0 else -1
         self.force_adr = int(model.sensor_adr[model.sensor(FORCE_SENSOR).id])
         self.torque_adr = int(model.sensor_adr[model.sensor(TORQUE_SENSOR).id])
         self.force_std, self.torque_std = float(force_std), float(torque_std)
@@ -114,8 +128,10 @@ class ContactSensor:
             force = force + self.rng.normal(0.0, self.force_std, 3)
         if self.torque_std > 0:
             torque = torque + self.rng.normal(0.0, self.torque_std, 3)
+        travel = float(d.qpos[self.slide_adr]) if self.slide_adr >= 0 else 0.0
+        tip = d.geom_xpos[self.probe].copy()
         reading = ContactReading(
-            force, torque, total, normal, tangential, surface >= 0, surface
+            force, torque, total, normal, tangential, surface >= 0, surface, tip, travel
         )  # fmt: skip
         self._last = (time, reading)
         return reading

@@ -37,6 +37,7 @@ from aeromanip.tasks.contact_estimate import (
     TIME_CONSTANT,
     RestPointEstimator,
 )
+from aeromanip.tasks.contact_feedforward import RATE as FEEDFORWARD_RATE
 from aeromanip.tasks.contact_feedforward import ThrustFeedforward
 
 F_REF = 0.0  # [N] the set normal force without a schedule
@@ -61,11 +62,14 @@ def _schedule(schedule: Sequence[Sequence[float]], key: str) -> np.ndarray:
     return a
 
 
-_HIGHEST = {"time_constant": 100.0, "max_offset": 1.0, "search_speed": 10.0}
+_HIGHEST = {
+    "time_constant": 100.0, "max_offset": 1.0, "search_speed": 10.0, "feedforward_rate": 1000.0,
+}  # fmt: skip
 
 
 def _checked(task: str, **options: float) -> dict[str, float]:
-    """The estimator's options, each in ``(0, highest]`` (a one-line error otherwise)."""
+    """The estimator's (and the feed-forward's) options, each in ``(0, highest]`` (a
+    one-line error otherwise)."""
     for key, value in options.items():
         high = _HIGHEST.get(key, MAX_FORCE)
         if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value <= high:
@@ -95,6 +99,8 @@ class NormalForce(SurfaceTask):
         feedforward: ask for the thrust that balances the planned force and the friction
             (module docstring, ``force_feedforward``).
         friction: the Coulomb coefficient the friction feed-forward assumes (0: none).
+        feedforward_rate: the feed-forward's largest change [N/s] (a slow control rate
+            wants a slow one: each step's change is held for the step).
         reference: the EE reference (the scenario's), whose tangential velocity gives the
             friction feed-forward its direction; ``None``: no friction feed-forward.
     """
@@ -119,6 +125,7 @@ class NormalForce(SurfaceTask):
         force_limit: float | None = None,
         feedforward: bool = False,
         friction: float = 0.0,
+        feedforward_rate: float = FEEDFORWARD_RATE,
         reference: Reference | None = None,
     ) -> None:
         if not (0.0 <= f_ref <= MAX_FORCE):
@@ -147,7 +154,8 @@ class NormalForce(SurfaceTask):
                 f"{self.name}.friction: must be in [0, {MAX_FRICTION:g}], got {friction!r}"
             )
         self.estimator: RestPointEstimator | None = None
-        self._thrust = ThrustFeedforward(float(friction))
+        rate = _checked(self.name, feedforward_rate=feedforward_rate)["feedforward_rate"]
+        self._thrust = ThrustFeedforward(float(friction), rate=rate)
         self._lost = False
         self._t_last: float | None = None
 

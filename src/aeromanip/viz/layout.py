@@ -4,7 +4,9 @@ Import from file): the robot in 3D beside plots of the log (docs/foxglove.md).
 Left, the 3D panel: the URDF from ``/robot_description`` moved by ``/tf``, the ``/scene``
 overlays, a grid, the camera following the platform. Right, tabs of plots of ``/log``
 columns against simulation time: EE vs reference, joints, clearance and CoG, the solver
-(time, iterations, status); in physics runs also attitude and the arm's torque.
+(time, iterations, status); in physics runs also attitude and the arm's torque; with
+surfaces the measured normal force against the set one (``/contact``) and, in 3D, the
+force arrow (``/contact/arrow``).
 """
 
 from __future__ import annotations
@@ -18,13 +20,17 @@ LAYOUT_FILE = "foxglove-layout.json"
 
 
 def _plot(fl: Any, title: str, paths: list[tuple[str, str]]) -> Any:
-    """A plot panel of ``/log`` columns: (column, label) pairs."""
-    series = [fl.PlotSeries(value=f"/log.{c}", label=label, enabled=True) for c, label in paths]
+    """A plot panel of ``/log`` columns (or of full message paths, ``/topic.field``):
+    (column, label) pairs."""
+    series = [
+        fl.PlotSeries(value=c if c.startswith("/") else f"/log.{c}", label=label, enabled=True)
+        for c, label in paths
+    ]
     config = fl.PlotConfig(paths=series, show_legend=True, legend_display="top")
     return fl.PlotPanel(title=title, config=config)
 
 
-def _three_d(fl: Any, base_link: str) -> Any:
+def _three_d(fl: Any, base_link: str, contact: bool) -> Any:
     urdf = fl.BaseRendererUrdfLayerSettings(
         visible=True,
         layer_id="foxglove.Urdf",
@@ -39,7 +45,10 @@ def _three_d(fl: Any, base_link: str) -> Any:
     )
     config = fl.ThreeDeeConfig(
         layers={"uam": urdf, "grid": grid},
-        topics={"/scene": fl.BaseRendererSceneUpdateTopicSettings(visible=True)},
+        topics={
+            topic: fl.BaseRendererSceneUpdateTopicSettings(visible=True)
+            for topic in ("/scene", *(("/contact/arrow",) if contact else ()))
+        },
         fixed_frame="world",
         follow_tf=base_link,
         follow_mode="follow-position",
@@ -65,6 +74,12 @@ def foxglove_layout(log: RunLog, base_link: str) -> str:
         tabs.append(("attitude", [("roll", "roll"), ("pitch", "pitch")]))
     if "arm_torque" in log:
         tabs.append(("arm torque", [("arm_torque", "arm torque N m")]))
+    contact = "tip_x" in log and "f_x" in log
+    if contact:
+        forces = [("/contact.normal_force", "measured N"), ("/contact.f_n", "true N")]
+        if "f_ref" in log:
+            forces.append(("/contact.f_ref", "set N"))
+        tabs.append(("contact force", forces))
     items = [fl.TabItem(title=t, content=_plot(fl, t, p)) for t, p in tabs]
     solver = fl.SplitContainer(
         direction="column",
@@ -85,7 +100,7 @@ def foxglove_layout(log: RunLog, base_link: str) -> str:
     content = fl.SplitContainer(
         direction="row",
         items=[
-            fl.SplitItem(proportion=3, content=_three_d(fl, base_link)),
+            fl.SplitItem(proportion=3, content=_three_d(fl, base_link, contact)),
             fl.SplitItem(proportion=2, content=right),
         ],
     )

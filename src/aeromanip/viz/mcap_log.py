@@ -13,7 +13,9 @@ stamped with simulation time (``t`` of its row, nanoseconds from 0). Topics:
 * ``/robot_description`` (``std_msgs/String`` as JSON ``{"data": URDF}``, once): what the
   3D panel's URDF layer reads from a topic;
 * ``/scene`` (``foxglove.SceneUpdate``, once): the EE reference path, the flown EE path,
-  the waypoints and the platform's box bounds, in ``world``.
+  the waypoints, the platform's box bounds and the surfaces, in ``world``;
+* with surfaces, ``/contact`` (the measured and set forces, per row) and
+  ``/contact/arrow`` (the force arrow at the probe, per row): ``viz.mcap_contact``.
 
 ``robot.urdf``, ``robot.xml``, ``config.toml`` and ``meta.json`` are attached; the run's
 metadata (scenario, strategy, backend, simulator, dt) is an MCAP metadata record.
@@ -31,8 +33,16 @@ import numpy as np
 
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.runlog import META_FILE, RunLog
+from aeromanip.viz.contact import ForceArrows
 from aeromanip.viz.dependencies import require
 from aeromanip.viz.layout import LAYOUT_FILE, foxglove_layout
+from aeromanip.viz.mcap_contact import (
+    CONTACT_SCHEMA,
+    CONTACT_SCHEMA_NAME,
+    arrow_update,
+    contact_messages,
+    surface_entity,
+)
 from aeromanip.viz.runs import URDF_FILE, SavedRun, box_bounds, load_run, run_dirs
 from aeromanip.viz.transforms import WORLD, FrameTree
 
@@ -105,10 +115,24 @@ def _write(run: SavedRun, path: Path) -> str:
             tf.log(_frame_transforms(transforms, k, ns), log_time=ns)
             joints.log(_joint_states(names, run.traj.q[k], ns), log_time=ns)
             log.log(rows[k], log_time=ns)
+        _contact(run.log, fg, channels, ctx, times)
         _attach(writer, run.path, times[0])
         meta = {k: str(v) for k, v in run.log.meta.items() if isinstance(v, str | int | float)}
         writer.write_metadata("aeromanip", meta)
     return tree.base
+
+
+def _contact(log: RunLog, fg: Any, channels: Any, ctx: Any, times: list[int]) -> None:
+    """``/contact`` and ``/contact/arrow``, per row, for a run with surfaces."""
+    arrows = ForceArrows.of_run(log)
+    if arrows is None:
+        return
+    schema = _json_schema(fg, CONTACT_SCHEMA_NAME, CONTACT_SCHEMA)
+    forces = fg.Channel("/contact", schema=schema, message_encoding="json", context=ctx)
+    arrow = channels.SceneUpdateChannel("/contact/arrow", context=ctx)
+    for k, msg in enumerate(contact_messages(log, arrows)):
+        forces.log(json.dumps(msg, allow_nan=False).encode(), log_time=times[k])
+        arrow.log(arrow_update(arrows, k, _timestamp(times[k])), log_time=times[k])
 
 
 def _static(run: SavedRun, fg: Any, channels: Any, ctx: Any, ns: int) -> None:
@@ -223,6 +247,9 @@ def _scene(run: SavedRun, ns: int) -> Any:
         entities.append(
             SceneEntity(timestamp=stamp, frame_id=WORLD, id="box_bounds", lines=[_box_edges(*box)])
         )
+    surfaces = surface_entity(run.log, stamp)
+    if surfaces is not None:
+        entities.append(surfaces)
     return SceneUpdate(entities=entities)
 
 

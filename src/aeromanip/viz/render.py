@@ -3,7 +3,8 @@
 One ``Offscreen`` (GL context, ``MjrContext``, ``MjvScene``) per panel is made once and
 reused for every frame; a frame sets ``qpos`` from the logged pose (free joint: position and
 ``Rz(yaw) Ry(pitch) Rx(roll)``; hinges: ``q1..qn``), runs ``mj_kinematics`` and
-``mj_camlight`` only (no dynamics), updates the scene, appends the overlays
+``mj_camlight`` only (no dynamics; a compliant probe's tip at its logged travel),
+updates the scene, appends the overlays
 (``viz.scene``), renders, and writes the caption with Pillow.
 
 No shadow mapping, multisampling or reflections: on a software renderer (Mesa llvmpipe on a
@@ -109,7 +110,11 @@ class Panel:
         self._bind()
         self.offscreen = Offscreen(self.model, width, height, self.overlays.count(), quality)
         radius = self._radius()
-        self.camera = FollowCamera(run.traj, radius, float(self.model.vis.global_.fovy))
+        arrows = self.overlays.arrows
+        normal = (
+            arrows.direction[np.argmax(arrows.drawn)] if arrows and arrows.drawn.any() else None
+        )
+        self.camera = FollowCamera(run.traj, radius, float(self.model.vis.global_.fovy), normal)
         self._disc = DISC_SHARE * radius
         self._font = _font(FONT_PX)
 
@@ -129,6 +134,13 @@ class Panel:
         self._hinges = np.array([m.jnt_qposadr[j] for j in hinges])
         depth = [self._depth(int(m.site_bodyid[s])) for s in range(m.nsite)]
         self._ee = int(np.argmax(depth)) if m.nsite else -1  # the site deepest in the arm
+        slides = [j for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE]
+        log = self.run.log
+        self._probe = (  # the compliant probe's tip (the model's one slide), as logged
+            (int(m.jnt_qposadr[slides[0]]), log.column("probe_travel"))
+            if len(slides) == 1 and "probe_travel" in log
+            else None
+        )
 
     def _depth(self, body: int) -> int:
         d = 0
@@ -153,6 +165,9 @@ class Panel:
         qpos[self._free : self._free + 3] = pos
         qpos[self._free + 3 : self._free + 7] = quat_from_rpy(rpy)[0]
         qpos[self._hinges] = q
+        if self._probe is not None:
+            adr, travel = self._probe
+            qpos[adr] = np.interp(t, self.run.traj.t, travel)
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_camlight(self.model, self.data)  # light directions (kinematics leaves them)
 
@@ -168,13 +183,17 @@ class Panel:
         return self.caption(self.offscreen.render(), t)
 
     def caption(self, image: np.ndarray, t: float) -> np.ndarray:
-        """Write the run's name, time, EE error and the step's status on ``image``."""
+        """Write the run's name, time, EE error (with surfaces: the measured normal
+        force) and the step's status on ``image``."""
         pil = require("PIL.Image", "pillow", "the replay's caption")
         draw_mod = require("PIL.ImageDraw", "pillow", "the replay's caption")
         traj, font = self.run.traj, self._font
         k = traj.row(t)
         status = str(traj.status[k]) or "-"
         info = f"t = {t:.1f} s   EE error {1e3 * traj.error(k):.1f} mm   "
+        arrows = self.overlays.arrows
+        if arrows is not None:  # a run with surfaces: the measured normal force
+            info += f"force {max(float(arrows.along[k]), 0.0):.2f} N   "
         im = pil.fromarray(image)
         draw = draw_mod.Draw(im, "RGBA")
         y2 = 6 + FONT_PX + 4
