@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 import os
-import socket
 import threading
 import time
 from collections.abc import Callable
@@ -32,13 +31,6 @@ HOST = "127.0.0.1"
 STATE_HZ = 50.0
 HEARTBEAT_S = 1.0
 OFFBOARD, AUTO, LOITER = 6, 4, 3  # px4_custom_mode.h L45-55, L58-76
-
-
-def free_udp_port() -> int:
-    """A free UDP port on 127.0.0.1."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((HOST, 0))
-        return s.getsockname()[1]
 
 
 @dataclass

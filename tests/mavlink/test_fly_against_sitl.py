@@ -15,7 +15,6 @@ C. the SITL killed (SIGKILL) mid-flight: the runtime reports link loss within 0.
 
 import json
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -27,6 +26,7 @@ import pytest
 from aeromanip.experiment.closed_loop import simulate
 from aeromanip.experiment.runlog import RunLog
 from aeromanip.experiment.scenario import load_scenarios
+from loopback import free_udp_port
 
 pytest.importorskip("pymavlink")
 pytestmark = pytest.mark.realtime  # the two processes fly against the wall clock
@@ -35,12 +35,6 @@ HOST = "127.0.0.1"
 MISSION_S = 60.0
 SITL_MAX_S = 240.0  # the SITL stops by itself after this, whatever happens
 CLI = [sys.executable, "-m", "aeromanip.cli"]
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((HOST, 0))
-        return s.getsockname()[1]
 
 
 def rows_in(path: Path) -> int:

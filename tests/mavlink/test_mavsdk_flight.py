@@ -16,7 +16,6 @@ import asyncio
 import json
 import math
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -25,6 +24,7 @@ import numpy as np
 import pytest
 
 from aeromanip.experiment.runlog import RunLog
+from loopback import free_udp_port
 
 mavsdk = pytest.importorskip("mavsdk")
 pytest.importorskip("pymavlink")
@@ -37,12 +37,6 @@ APP_LIMIT_S = 60.0  # [s] the app's whole flight, connection to disarm
 SITL_MAX_S = 80.0  # [s] the SITL stops by itself after this, whatever happens
 TELEMETRY_TOL_M = 0.01  # [m] MAVSDK's position against the truth
 CLI = [sys.executable, "-m", "aeromanip.cli"]
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((HOST, 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")

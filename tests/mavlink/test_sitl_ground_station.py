@@ -8,7 +8,6 @@ of ``flight`` in physics, in real time (one SITL, about 10 s).
 """
 
 import math
-import socket
 import threading
 import time
 from collections import Counter
@@ -25,6 +24,7 @@ from aeromanip.mavlink.sitl_telemetry import (
     HOME_LAT_DEG,
     HOME_LON_DEG,
 )
+from loopback import free_udp_port
 
 pytest.importorskip("pymavlink")
 pytestmark = pytest.mark.realtime  # flies against the wall clock: the machine to itself
@@ -67,12 +67,6 @@ def mean_period(stamps: list[int], measured_every: int) -> float:
     stamps' unit), so a 20 Hz stream's periods are 40 and 60 ms."""
     assert all((b - a) > 0 and (b - a) % measured_every == 0 for a, b in pairwise(stamps))
     return (stamps[-1] - stamps[0]) / (len(stamps) - 1)
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class ServingDoneError(Exception):

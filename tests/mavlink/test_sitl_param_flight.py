@@ -6,8 +6,6 @@ A pymavlink client on loopback against the SITL of ``flight`` in physics, in rea
 """
 
 import math
-import socket
-import threading
 import time
 
 import pytest
@@ -16,6 +14,7 @@ from aeromanip.experiment.scenario import load_scenarios
 from aeromanip.mavlink.protocol import load_mavutil
 from aeromanip.mavlink.sitl import SitlAutopilot
 from aeromanip.mavlink.sitl_params import REAL32
+from loopback import free_udp_port, sitl_in_thread
 
 pytest.importorskip("pymavlink")
 
@@ -23,12 +22,6 @@ FLY_S = 7.5  # [s] the SITL's run (real time)
 CAP = 0.2  # [m/s] MPC_XY_VEL_MAX set by the client
 LOSS_T = 1.5  # [s] COM_OF_LOSS_T set by the client
 VELOCITY_NED_YAW = 2503  # MAVSDK's set_velocity_ned
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def stream(client, until: float, north: float, got: list) -> None:
@@ -55,31 +48,20 @@ def test_the_velocity_cap_and_the_loss_timeout_fly_as_set():
     client = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
     sc = load_scenarios("flight", ["duration=5"])[""]
     sitl = SitlAutopilot(sc, f"udpout:127.0.0.1:{port}")
-    rows, failures, got = [], [], []
-
-    def serve() -> None:
+    got: list = []
+    with sitl_in_thread(sitl, FLY_S) as rows:
         try:
-            sitl.run(rows.append, max_time_s=FLY_S)
-        except BaseException as e:  # reported by the test
-            failures.append(e)
-
-    thread = threading.Thread(target=serve, daemon=True)
-    thread.start()
-    try:
-        assert client.wait_heartbeat(timeout=5) is not None
-        t0 = time.monotonic()
-        client.mav.param_set_send(1, 1, b"MPC_XY_VEL_MAX", CAP, REAL32)
-        client.mav.param_set_send(1, 1, b"COM_OF_LOSS_T", LOSS_T, REAL32)
-        client.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # arm
-        stream(client, t0 + 1.2, 1.0, got)
-        client.mav.command_long_send(1, 1, 176, 0, 1, 6, 0, 0, 0, 0, 0)  # offboard
-        stream(client, t0 + 4.0, 1.0, got)  # 1 m/s asked
-        stream(client, t0 + 6.5, None, got)  # silence: the failsafe after LOSS_T
-    finally:
-        thread.join(timeout=FLY_S + 5)
-        client.close()
-        sitl.close()
-    assert not failures and not thread.is_alive()
+            assert client.wait_heartbeat(timeout=5) is not None
+            t0 = time.monotonic()
+            client.mav.param_set_send(1, 1, b"MPC_XY_VEL_MAX", CAP, REAL32)
+            client.mav.param_set_send(1, 1, b"COM_OF_LOSS_T", LOSS_T, REAL32)
+            client.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # arm
+            stream(client, t0 + 1.2, 1.0, got)
+            client.mav.command_long_send(1, 1, 176, 0, 1, 6, 0, 0, 0, 0, 0)  # offboard
+            stream(client, t0 + 4.0, 1.0, got)  # 1 m/s asked
+            stream(client, t0 + 6.5, None, got)  # silence: the failsafe after LOSS_T
+        finally:
+            client.close()
     echoes = {m.param_id: m.param_value for m in got if m.get_type() == "PARAM_VALUE"}
     assert echoes == {"MPC_XY_VEL_MAX": pytest.approx(CAP), "COM_OF_LOSS_T": LOSS_T}
     flown = [r for r in rows if r["status"] == "offboard"]

@@ -9,8 +9,6 @@ STATUSTEXT PX4 would send.
 """
 
 import math
-import socket
-import threading
 import time
 
 import pytest
@@ -19,6 +17,7 @@ from aeromanip.experiment.scenario import load_scenarios
 from aeromanip.mavlink import frames
 from aeromanip.mavlink.protocol import load_mavutil
 from aeromanip.mavlink.sitl import SitlAutopilot
+from loopback import free_udp_port, sitl_in_thread
 
 pytest.importorskip("pymavlink")
 pytestmark = pytest.mark.realtime  # flies against the wall clock: the machine to itself
@@ -26,12 +25,6 @@ pytestmark = pytest.mark.realtime  # flies against the wall clock: the machine t
 FLY_S = 4.0  # [s] the SITL's run (real time)
 NORTH = 0.5  # [m/s] the commanded speed
 VELOCITY_NED_YAW = 2503  # MAVSDK's set_velocity_ned
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def fly(client, mav, until, vel, yaw=0.0, texts=None) -> None:
@@ -59,31 +52,19 @@ def test_a_stock_velocity_setpoint_flies_and_a_nan_one_is_refused_in_words():
     client = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
     sc = load_scenarios("flight", ["duration=5"])[""]
     sitl = SitlAutopilot(sc, f"udpout:127.0.0.1:{port}")
-    rows, failures = [], []
-
-    def serve() -> None:
+    with sitl_in_thread(sitl, FLY_S) as rows:
         try:
-            sitl.run(rows.append, max_time_s=FLY_S)
-        except BaseException as e:  # reported by the test
-            failures.append(e)
-
-    thread = threading.Thread(target=serve, daemon=True)
-    thread.start()
-    try:
-        assert client.wait_heartbeat(timeout=5) is not None
-        t0 = time.monotonic()
-        client.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # arm
-        texts: list[str] = []
-        heading = frames.yaw_enu_to_ned(float(sc.x0[sc.robot.platform.dofs.index("yaw")]))
-        fly(client, mav, t0 + 1.2, (0.0, 0.0, 0.0), heading, texts)
-        client.mav.command_long_send(1, 1, 176, 0, 1, 6, 0, 0, 0, 0, 0)  # offboard
-        fly(client, mav, t0 + 2.7, (NORTH, 0.0, 0.0), heading, texts)  # keep the heading
-        fly(client, mav, t0 + 3.2, (math.nan, math.inf, -math.inf), yaw=math.nan, texts=texts)
-    finally:
-        thread.join(timeout=FLY_S + 5)
-        client.close()
-        sitl.close()
-    assert not failures and not thread.is_alive()
+            assert client.wait_heartbeat(timeout=5) is not None
+            t0 = time.monotonic()
+            client.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # arm
+            texts: list[str] = []
+            heading = frames.yaw_enu_to_ned(float(sc.x0[sc.robot.platform.dofs.index("yaw")]))
+            fly(client, mav, t0 + 1.2, (0.0, 0.0, 0.0), heading, texts)
+            client.mav.command_long_send(1, 1, 176, 0, 1, 6, 0, 0, 0, 0, 0)  # offboard
+            fly(client, mav, t0 + 2.7, (NORTH, 0.0, 0.0), heading, texts)  # keep the heading
+            fly(client, mav, t0 + 3.2, (math.nan, math.inf, -math.inf), yaw=math.nan, texts=texts)
+        finally:
+            client.close()
     # each event said, in order; the bad setpoint refused as PX4's position controller
     # rejects it, said once, not at every message
     assert texts == ["armed: hold", "offboard", "SET_POSITION_TARGET_LOCAL_NED: invalid setpoints"]

@@ -10,11 +10,13 @@ compiler, a failed build (one warning) or, for a part that runs the generated mo
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import hashlib
 import logging
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 from collections.abc import Sequence
@@ -23,6 +25,7 @@ from pathlib import Path
 
 import casadi as ca
 
+from aeromanip.interrupts import deferred
 from aeromanip.nmpc.backends.cache import CacheEntry
 from aeromanip.nmpc.backends.codegen import BUILD_TIMEOUT_S, cache_dir
 
@@ -85,18 +88,35 @@ def load(spec: CSources) -> ctypes.CDLL | None:
 
 
 def _build(spec: CSources, entry: CacheEntry, cc: str) -> bool:
+    """Compile ``spec`` into the cache entry. The compiler runs in its own process group
+    with its temporary files in the build directory, as ``codegen``'s do: an interrupt
+    kills gcc's cc1 and as too, and leaves no file behind."""
     with tempfile.TemporaryDirectory(prefix=f"build-{spec.name}-", dir=entry.lib.parent) as tmp:
         out = Path(tmp) / entry.lib.name
         sources = [str(spec.directory / name) for name in spec.sources]
         cmd = [cc, *spec.cflags, *sources, f"-I{casadi_dir() / 'include'}", "-o", str(out),
                *spec.link, "-lm"]  # fmt: skip
+        proc = None
         try:
-            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
+            with deferred():  # the compiler is started and recorded, or neither
+                proc = subprocess.Popen(
+                    cmd,
+                    stdout=subprocess.PIPE,
+                    stderr=subprocess.STDOUT,
+                    start_new_session=True,
+                    env={**os.environ, "TMPDIR": tmp},
+                )
+            text, _ = proc.communicate(timeout=BUILD_TIMEOUT_S)
         except (OSError, subprocess.TimeoutExpired) as e:
             log.warning("codegen: building %s failed (%s); Python instead", spec.purpose, e)
             return False
+        finally:  # an interrupt or a timeout: no compiler left running
+            if proc is not None and proc.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
         if proc.returncode != 0:
-            last = (proc.stderr.strip().splitlines() or ["?"])[-1]
+            last = (text.decode(errors="replace").strip().splitlines() or ["?"])[-1]
             log.warning("codegen: building %s failed (%s); Python instead", spec.purpose, last)
             return False
         entry.install(out)
