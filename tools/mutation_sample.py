@@ -10,8 +10,9 @@ has generated the mutants (``mutants/``, e.g. by a ``mutmut run`` restricted to 
 ``pick`` draws ``round(size * N_m / N)`` mutants (at least 2) from each module ``m`` under
 ``src/aeromanip/<prefix>``; ``report`` prints, per package, the stratified kill rate (each
 module weighted by its share ``N_m / N`` of the package's mutants) with a 95 % Wilson
-interval on the sample's effective size. ``--killed-also`` names mutants killed outside
-mutmut (e.g. by new tests run with ``MUTANT_UNDER_TEST``); they count as killed.
+interval on the sample's effective size, then (several packages) the same over them all
+(``pick "" ...`` samples every mutated module). ``--killed-also`` names mutants killed
+outside mutmut (e.g. by new tests run with ``MUTANT_UNDER_TEST``); they count as killed.
 """
 
 from __future__ import annotations
@@ -65,6 +66,19 @@ def pick(prefix: str, size: int, seed: int) -> list[str]:
     return out
 
 
+def _row(label: str, mods: dict[str, list[int]], sizes: dict[str, int]) -> str:
+    """One table row: the stratified kill rate of ``mods`` (module -> 0/1 per sampled
+    mutant), each module weighted by its share of their mutants, and its interval."""
+    n_all = sum(sizes[m] for m in mods)
+    rate = sum(sizes[m] / n_all * sum(v) / len(v) for m, v in mods.items())
+    var = sum((sizes[m] / n_all) ** 2 * rate * (1 - rate) / len(v) for m, v in mods.items())
+    n_eff = rate * (1 - rate) / var if var > 0 else sum(len(v) for v in mods.values())
+    lo, hi = wilson(rate * n_eff, n_eff)
+    n, k = sum(len(v) for v in mods.values()), sum(sum(v) for v in mods.values())
+    rates = f"{100 * rate:.1f} % | {100 * lo:.1f} - {100 * hi:.1f} %"
+    return f"| {label} | {n_all} | {n} | {k} | {rates} |"
+
+
 def report(sample: list[str], killed_also: set[str]) -> str:
     codes = exit_codes()
     module_of = {n: m for m, names in mutants("").items() for n in names}
@@ -81,17 +95,10 @@ def report(sample: list[str], killed_also: set[str]) -> str:
     lines.append("|---|---|---|---|---|---|")
     sizes = {m: len(v) for m, v in mutants("").items()}
     for pkg in sorted(per):
-        mods = per[pkg]
-        n_pkg = sum(sizes[m] for m in mods)
-        rate = sum(sizes[m] / n_pkg * sum(v) / len(v) for m, v in mods.items())
-        var = sum((sizes[m] / n_pkg) ** 2 * rate * (1 - rate) / len(v) for m, v in mods.items())
-        n_eff = rate * (1 - rate) / var if var > 0 else sum(len(v) for v in mods.values())
-        lo, hi = wilson(rate * n_eff, n_eff)
-        n, k = sum(len(v) for v in mods.values()), sum(sum(v) for v in mods.values())
-        lines.append(
-            f"| `{pkg}/` | {n_pkg} | {n} | {k} | {100 * rate:.1f} % "
-            f"| {100 * lo:.1f} - {100 * hi:.1f} % |"
-        )
+        lines.append(_row(f"`{pkg}/`", per[pkg], sizes))
+    if len(per) > 1:  # every module sampled, each weighted by its share of them all
+        every = {m: v for mods in per.values() for m, v in mods.items()}
+        lines.append(_row("**all**", every, sizes))
     return "\n".join(lines)
 
 

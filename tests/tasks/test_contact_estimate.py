@@ -76,6 +76,15 @@ def test_an_over_force_moves_the_rest_point_at_once():
     assert MODEL.normal_force(p, est.offset) == pytest.approx(8.0, rel=1e-6)
 
 
+def test_a_surface_felt_far_nearer_than_modelled_bounds_the_estimate_below():
+    est = RestPointEstimator(MODEL, force_limit=5.0, max_offset=0.03)
+    early = np.array([0.2, 0.0, 0.6])  # 9 cm before the model's face, yet 8 N felt
+    unbounded = float(MODEL.penetration(early)) - MODEL.penetration_of_force(8.0)
+    assert unbounded < -0.1  # the rule alone would move the rest point 10 cm out
+    est.update(early, 8.0 * N, 0.1)
+    assert est.offset == pytest.approx(-0.03) and est.event == "limit"
+
+
 def test_the_feedforward_is_held_through_a_bounce_and_rate_limited():
     ff = ThrustFeedforward(friction=0.3)
     v_ref = np.array([0.0, 0.03, 0.0])  # sliding along +y

@@ -131,6 +131,9 @@ if not os.environ.get("FAKE_CC_QUIET"):
     print("fake-cc: reading the source", flush=True)
     sys.stderr.buffer.write(b"fake-cc: \\xff not UTF-8\\n")
     sys.stderr.write("fake-cc: error: nothing compiled here\\n")
+if os.environ.get("FAKE_CC_RMDIR"):  # it cleans up after itself, build directory and all
+    import shutil
+    shutil.rmtree(os.environ["TMPDIR"])
 sys.exit(1)
 """
 
@@ -138,7 +141,7 @@ sys.exit(1)
 @pytest.fixture
 def fake_cc(tmp_path, monkeypatch):
     """A compiler that records how it was started (pid, session, TMPDIR, arguments), may
-    sleep, then fails with a message on its standard error."""
+    sleep, then fails with a message on its standard error (and may remove its TMPDIR)."""
     script = tmp_path / "fake-cc"
     script.write_text(f"#!{sys.executable}\n{FAKE_CC}")
     script.chmod(0o755)
@@ -171,6 +174,21 @@ def test_a_build_runs_in_its_own_directory_and_session_and_its_errors_are_report
         "here); evaluating in-process"
     ) in caplog.text
     assert not build.exists() and not list((tmp_path / "cache").glob("build-*"))
+
+
+def test_a_compiler_that_removed_its_build_directory_still_leaves_the_fallback(
+    fake_cc, tmp_path, monkeypatch, caplog
+):
+    """A build directory already gone when the build is cleaned up: still the one warning
+    and the Function in-process, no exception."""
+    monkeypatch.setenv("FAKE_CC_RMDIR", "1")
+    x = ca.SX.sym("x", 2)
+    f = ca.Function("aeromanip_tidy_cc", [x], [ca.sumsqr(x)])
+    with caplog.at_level("WARNING"):
+        assert compiled(f) is f
+    assert not Path(json.loads(fake_cc.read_text())["tmpdir"]).exists()  # it did remove it
+    assert "codegen: compiling aeromanip_tidy_cc failed" in caplog.text
+    assert not list((tmp_path / "cache").glob("build-*"))
 
 
 def test_a_build_past_its_time_limit_is_killed_and_the_function_runs_in_process(

@@ -9,6 +9,7 @@ import ctypes
 import logging
 import os
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -146,3 +147,29 @@ def test_a_failing_solve_ends_as_in_the_python_loop():
     for py, c in zip(outcomes[False], outcomes[True], strict=True):
         assert c[:2] == py[:2] == ("stopped", "Maximum_Iterations_Exceeded")
         np.testing.assert_array_equal(c[2], py[2])
+
+
+def _restarts_at_a_solution(compiled):
+    """Iterations of a warm and of a cold solve, both started at the first step's
+    solution (the warm one with its multipliers, the cold one without any)."""
+    sc = bench_scenario("flight", 1.0)
+    ctrl = Controller(sc.problem, "weighted", "sqp", {"compiled_loop": compiled, "seed": "none"})
+    backend = ctrl.strategy.solvers[0].backend
+    assert (backend.loop is not None) == compiled
+    requests, solve = [], backend.solve
+    backend.solve = lambda r: requests.append(r) or solve(r)
+    ctrl.step(sc.x0, 0.0)
+    at = replace(requests[0], shift=False)
+    sol = solve(at)
+    assert sol.success
+    warm = solve(replace(at, w0=sol.w, lam_g0=sol.lam_g, lam_x0=sol.lam_x))
+    cold = solve(replace(at, w0=sol.w, lam_g0=None, lam_x0=None))
+    return warm.iterations, cold.iterations, cold.success
+
+
+def test_a_cold_start_takes_a_step_even_at_the_solution_as_in_the_python_loop():
+    """Without multipliers the tolerances are not judged before a first QP, even from
+    the solution itself; with them, that solution is accepted at once (both loops)."""
+    py = _restarts_at_a_solution(compiled=False)
+    assert py[0] == 0 and py[1] >= 1 and py[2]
+    assert _restarts_at_a_solution(compiled=True) == py
