@@ -24,7 +24,8 @@ from aeromanip.experiment.scenario import load_scenarios
 from aeromanip.mavlink.bridge import MavlinkTransport
 from aeromanip.runtime.follower import GAIN
 from aeromanip.runtime.transport import LinkError
-from px4_fake import FakePx4, free_udp_port
+from loopback import free_udp_port
+from px4_fake import FakePx4
 
 pytestmark = pytest.mark.realtime  # flies against the wall clock
 

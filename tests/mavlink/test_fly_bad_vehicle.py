@@ -28,7 +28,8 @@ from aeromanip.cli import main
 from aeromanip.errors import ExitCode
 from aeromanip.experiment.runlog import RunLog
 from aeromanip.experiment.scenario import load_scenarios
-from px4_fake import AUTO, INF, LOITER, FakePx4, free_udp_port
+from loopback import free_udp_port
+from px4_fake import AUTO, INF, LOITER, FakePx4
 
 pytestmark = pytest.mark.realtime  # flies against the wall clock
 
