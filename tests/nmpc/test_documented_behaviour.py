@@ -5,8 +5,9 @@ Truths: ``base.casadi_message`` (one line, without suggestions or listings),
 says), ``codegen.limit_blas_threads`` (read back with OpenBLAS's own getter), the QP
 solvers themselves (a failed QP reports the status DAQP / qpOASES give for the same QP),
 and the controller's and transcription's docstrings (warm starts, budgets, refusals,
-path rows). The SQP's own contracts: tests/nmpc/backends/sqp/test_solver_options.py;
-its sparse model: tests/nmpc/backends/sqp/test_sparse_qp.py; the ``nlpsol`` backends:
+path rows). The SQP's own contracts: tests/nmpc/backends/sqp/ (test_solver_options.py,
+test_line_search.py, test_sqp_answer.py); its sparse model:
+tests/nmpc/backends/sqp/test_sparse_qp.py; the ``nlpsol`` backends:
 tests/nmpc/backends/test_nlpsol.py.
 """
 
