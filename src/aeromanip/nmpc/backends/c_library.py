@@ -10,13 +10,11 @@ compiler, a failed build (one warning) or, for a part that runs the generated mo
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import hashlib
 import logging
 import os
 import shutil
-import signal
 import subprocess
 import tempfile
 from collections.abc import Sequence
@@ -27,7 +25,12 @@ import casadi as ca
 
 from aeromanip.interrupts import deferred
 from aeromanip.nmpc.backends.cache import CacheEntry
-from aeromanip.nmpc.backends.codegen import BUILD_TIMEOUT_S, cache_dir
+from aeromanip.nmpc.backends.codegen import (
+    BUILD_TIMEOUT_S,
+    cache_dir,
+    start_compiler,
+    stop_compiler,
+)
 
 log = logging.getLogger(__name__)
 
@@ -99,22 +102,13 @@ def _build(spec: CSources, entry: CacheEntry, cc: str) -> bool:
         proc = None
         try:
             with deferred():  # the compiler is started and recorded, or neither
-                proc = subprocess.Popen(
-                    cmd,
-                    stdout=subprocess.PIPE,
-                    stderr=subprocess.STDOUT,
-                    start_new_session=True,
-                    env={**os.environ, "TMPDIR": tmp},
-                )
+                proc = start_compiler(cmd, tmp)
             text, _ = proc.communicate(timeout=BUILD_TIMEOUT_S)
         except (OSError, subprocess.TimeoutExpired) as e:
             log.warning("codegen: building %s failed (%s); Python instead", spec.purpose, e)
             return False
         finally:  # an interrupt or a timeout: no compiler left running
-            if proc is not None and proc.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+            stop_compiler(proc)
         if proc.returncode != 0:
             last = (text.decode(errors="replace").strip().splitlines() or ["?"])[-1]
             log.warning("codegen: building %s failed (%s); Python instead", spec.purpose, last)

@@ -130,6 +130,27 @@ def announce_large_build(fs: Sequence[ca.Function]) -> bool:
     return True
 
 
+def start_compiler(cmd: list[str], tmp: str) -> subprocess.Popen:
+    """Start the compiler ``cmd`` in its own process group (an interrupt kills gcc's cc1
+    and as too: ``stop_compiler``), its temporary files in the build directory ``tmp``;
+    call it inside ``deferred()`` so that it is started and recorded, or neither."""
+    return subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+        env={**os.environ, "TMPDIR": tmp},
+    )
+
+
+def stop_compiler(proc: subprocess.Popen | None) -> None:
+    """Kill a compiler still running, with its process group, and reap it."""
+    if proc is not None and proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
 def _build_all(todo: list[tuple[ca.Function, CacheEntry]], cc: str) -> set[str]:
     """Build the entries (their locks held); return the names that failed."""
     jobs: list[tuple[ca.Function, CacheEntry, subprocess.Popen | None, str, Path]] = []
@@ -142,15 +163,7 @@ def _build_all(todo: list[tuple[ca.Function, CacheEntry]], cc: str) -> set[str]:
             try:
                 cmd = _generate(f, cc, Path(tmp), entry.lib.name)
                 with deferred():  # the compiler is started and recorded, or neither
-                    # its own process group: an interrupt kills gcc's cc1 and as too;
-                    # their temporary files go into the build directory (removed below)
-                    proc = subprocess.Popen(
-                        cmd,
-                        stdout=subprocess.PIPE,
-                        stderr=subprocess.STDOUT,
-                        start_new_session=True,
-                        env={**os.environ, "TMPDIR": tmp},
-                    )
+                    proc = start_compiler(cmd, tmp)  # its files go into tmp (removed below)
                     jobs[-1] = (*jobs[-1][:2], proc, *jobs[-1][3:])
             except OSError as e:
                 _warn_once(f"codegen: compiling {f.name()} failed ({e}); evaluating in-process")
@@ -160,10 +173,7 @@ def _build_all(todo: list[tuple[ca.Function, CacheEntry]], cc: str) -> set[str]:
                 failed.add(f.name())
     finally:  # normal end or an interrupt: no compiler left running, no build directory
         for _, _, proc, tmp, _ in jobs:
-            if proc is not None and proc.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+            stop_compiler(proc)
             shutil.rmtree(tmp, ignore_errors=True)
     return failed
 
