@@ -4,12 +4,16 @@ for a bounded time."""
 from __future__ import annotations
 
 import socket
+import subprocess
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 HOST = "127.0.0.1"
+CLI = [sys.executable, "-m", "aeromanip.cli"]
 
 
 def free_udp_port() -> int:
@@ -41,3 +45,13 @@ def sitl_in_thread(sitl: Any, fly_s: float) -> Iterator[list[dict]]:
         thread.join(timeout=fly_s + 5)
         sitl.close()
     assert not failures and not thread.is_alive(), failures
+
+
+def start_sitl(out: Path, port: int, max_s: float) -> subprocess.Popen:
+    """``aeromanip sitl flight`` sending to ``port`` on 127.0.0.1, its truth log in
+    ``out``, stopping by itself after ``max_s`` [s] whatever happens."""
+    return subprocess.Popen(
+        [*CLI, "sitl", "flight", "--link", f"udpout:{HOST}:{port}", "--out", str(out),
+         "--max-time", str(max_s)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip

@@ -26,7 +26,7 @@ import pytest
 from aeromanip.experiment.closed_loop import simulate
 from aeromanip.experiment.runlog import RunLog
 from aeromanip.experiment.scenario import load_scenarios
-from loopback import free_udp_port
+from loopback import free_udp_port, start_sitl
 
 pytest.importorskip("pymavlink")
 pytestmark = pytest.mark.realtime  # the two processes fly against the wall clock
@@ -65,11 +65,7 @@ def fly(root: Path, name: str, port: int, duration: float) -> subprocess.Popen:
 def flights(tmp_path_factory):
     root = tmp_path_factory.mktemp("mavlink")
     port = free_udp_port()
-    sitl = subprocess.Popen(
-        [*CLI, "sitl", "flight", "--link", f"udpout:{HOST}:{port}", "--out", str(root / "sitl"),
-         "--max-time", str(SITL_MAX_S)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    sitl = start_sitl(root / "sitl", port, SITL_MAX_S)
     procs = [sitl]
     out = {"root": root}
     try:

@@ -16,7 +16,6 @@ import asyncio
 import json
 import math
 import signal
-import subprocess
 import sys
 import time
 
@@ -24,7 +23,7 @@ import numpy as np
 import pytest
 
 from aeromanip.experiment.runlog import RunLog
-from loopback import free_udp_port
+from loopback import free_udp_port, start_sitl
 
 mavsdk = pytest.importorskip("mavsdk")
 pytest.importorskip("pymavlink")
@@ -43,11 +42,7 @@ CLI = [sys.executable, "-m", "aeromanip.cli"]
 def flight(tmp_path_factory):
     root = tmp_path_factory.mktemp("mavsdk")
     port = free_udp_port()
-    sitl = subprocess.Popen(
-        [*CLI, "sitl", "flight", "--link", f"udpout:{HOST}:{port}", "--out", str(root / "sitl"),
-         "--max-time", str(SITL_MAX_S)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    sitl = start_sitl(root / "sitl", port, SITL_MAX_S)
     began = time.monotonic()
     wall_minus_mono = time.time() - time.monotonic()  # the app stamps with the loop's clock
     try:
