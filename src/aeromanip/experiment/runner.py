@@ -140,6 +140,10 @@ def run_one(
         sim = make_simulator(sc)
         with LogWriter(out_dir, log_columns(sc, sim), run_meta(sc)) as writer:
             fly(sc, writer.write, progress=progress, sim=sim)
+        with deferred():  # flown: its summary is written before a signal is acted on
+            log = RunLog.load(out_dir)
+            summary = summarize(sc, log)
+            write_summary(out_dir, summary)
     except RunInterrupted as e:
         with deferred():
             _write_stopped_summary(sc, out_dir, str(e), interrupted=True)
@@ -149,9 +153,6 @@ def run_one(
             why = describe_os_error(e, root=str(out_dir))
             _write_stopped_summary(sc, out_dir, why, interrupted=False)
         raise
-    log = RunLog.load(out_dir)
-    summary = summarize(sc, log)
-    write_summary(out_dir, summary)
     if figures:
         plot_run(log, out_dir / "figures")
     return summary
