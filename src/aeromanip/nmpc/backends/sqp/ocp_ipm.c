@@ -545,8 +545,7 @@ int ocp_ipm_solve(OcpIpm* s, const double* H, const double* g, const double* b,
     /* the bounds' multipliers start at the gradient's scale (they balance it at the
      * optimum): an SQP's QPs near convergence start near their small multipliers */
     double gmax = 0.0;
-    for (int i = 0; i < (N + 1) * nv; i++)
-        if (i < N * nv + nx) gmax = fmax(gmax, fabs(g[i]));
+    for (int i = 0; i < N * nv + nx; i++) gmax = fmax(gmax, fabs(g[i]));
     init(s, &d, thr, fmin(thr, fmax(gmax, LAMBDA_FLOOR)));
     double *rcl = malloc(sizeof(double) * nbt * 2), *rcu = rcl + nbt;
     int status = OCP_IPM_MAX_ITER, it = 0;
