@@ -29,8 +29,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
             "horizon",
         ],
         help="what to measure; 'profile' (where a step's time goes: QP, compiled model, "
-        "Python), 'stress' (binding bounds, a far start, the clearance binding: issue "
-        "14's targets), 'peer' (do-mpc on the flight problem, needs the 'bench' extra) and "
+        "Python), 'stress' (binding bounds, a far start, the clearance binding), "
+        "'peer' (do-mpc on the flight problem, needs the 'bench' extra) and "
         "'horizon' (cold builds at N = 10..100, tens of minutes) are not part of 'all'",
     )
     p.add_argument(
