@@ -1,12 +1,22 @@
-"""Hessian convexification against a NumPy re-implementation of the rule of ``convexify.py``
-(``rho = base 10^k``, the smallest that makes ``H + rho C'C`` positive definite; otherwise
-``|lambda|`` floored at ``EIGEN_FLOOR max(|lambda|max, 1e-3)``), with ``numpy.linalg.eigvalsh``
-as the positive-definiteness test."""
+"""Hessian convexification.
+
+Dense: against a NumPy re-implementation of the rule of ``convexify.py`` (``rho = base
+10^k``, the smallest that makes ``H + rho C'C`` positive definite; otherwise ``|lambda|``
+floored at ``EIGEN_FLOOR max(|lambda|max, 1e-3)``), with ``numpy.linalg.eigvalsh`` as the
+positive-definiteness test. Per-stage blocks: against the condensed Hessian built here by
+eliminating the states explicitly (independent of the Riccati recursion the module uses),
+and the equality-constrained step solved whole."""
 
 import numpy as np
 import pytest
 
-from aeromanip.nmpc.backends.sqp.convexify import CONVEXIFY_DECADES, EIGEN_FLOOR, convexified
+from aeromanip.nmpc.backends.sqp.convexify import (
+    CONVEXIFY_DECADES,
+    EIGEN_FLOOR,
+    active_normals,
+    convexified,
+    reduced_convexified,
+)
 
 
 def numpy_convexified(H, C, fixed):
@@ -58,3 +68,141 @@ def test_convexified_matches_a_numpy_reimplementation(name):
     expected = numpy_convexified(H, C, fixed)
     np.testing.assert_allclose(convexified(H.copy(), C, fixed), expected, rtol=1e-12, atol=0)
     assert np.linalg.eigvalsh(expected).min() > 0
+
+
+# --- per-stage blocks: convex on the dynamics' null space ------------------------------------
+
+NX, NU, N = 4, 3, 6
+
+
+def dynamics(seed=0):
+    rng = np.random.default_rng(seed)
+    return np.eye(NX) + 0.1 * rng.normal(size=(NX, NX)), rng.normal(size=(NX, NU))
+
+
+def condensing(A, B):
+    """``Y``: the stage variables ``[x_k; u_k]`` (and ``x_N``) as a linear map of the
+    commands ``u_0..u_{N-1}`` with ``x_0 = 0``, by explicit elimination."""
+    X = [np.zeros((NX, N * NU))]
+    for k in range(N):
+        step = A @ X[-1]
+        step[:, k * NU : (k + 1) * NU] += B
+        X.append(step)
+    stages = []
+    for k in range(N):
+        U = np.zeros((NU, N * NU))
+        U[:, k * NU : (k + 1) * NU] = np.eye(NU)
+        stages.append(np.vstack([X[k], U]))
+    return stages, X[N]
+
+
+def condensed(Hs, HT, A, B):
+    """The Hessian in the commands of ``sum_k y_k' Hs[k] y_k + x_N' HT x_N``."""
+    stages, last = condensing(A, B)
+    return sum(Y.T @ H @ Y for Y, H in zip(stages, Hs, strict=True)) + last.T @ HT @ last
+
+
+def random_blocks(rng, shift=0.0):
+    M = rng.normal(size=(N, NX + NU, NX + NU))
+    Hs = np.swapaxes(M, 1, 2) @ M - shift * np.eye(NX + NU)
+    T = rng.normal(size=(NX, NX))
+    return Hs, T @ T.T
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_reduced_convexified_makes_the_condensed_hessian_positive_definite(seed):
+    """Indefinite blocks whose condensed Hessian is indefinite: after, it is positive
+    definite; only the command blocks ``R_k`` change (reflection alone), and a second pass
+    changes nothing."""
+    rng = np.random.default_rng(seed)
+    A, B = dynamics(seed)
+    Hs, HT = random_blocks(rng, shift=30.0)
+    assert np.linalg.eigvalsh(condensed(Hs, HT, A, B)).min() < 0
+    out, out_T = reduced_convexified(Hs, HT, (A, B))
+    assert np.linalg.eigvalsh(condensed(out, out_T, A, B)).min() > 0
+    np.testing.assert_array_equal(out[:, :NX, :], Hs[:, :NX, :])  # states' rows kept
+    np.testing.assert_array_equal(out[:, :, :NX], Hs[:, :, :NX])
+    assert out_T is HT
+    again = reduced_convexified(out, out_T, (A, B))
+    assert again[0] is out
+
+
+def test_blocks_convex_on_the_null_space_come_back_unchanged():
+    """Every state block indefinite, the condensed Hessian positive definite (the
+    dynamics carry the commands' curvature): the blocks are returned as they are."""
+    rng = np.random.default_rng(3)
+    A, B = dynamics(3)
+    Hs, HT = random_blocks(rng)
+    Hs[:, NX:, NX:] += 20.0 * np.eye(NU)  # the commands' own curvature
+    for k in range(N):  # each block just indefinite, along a state direction
+        Hs[k, :NX, :NX] -= (np.linalg.eigvalsh(Hs[k]).min() + 0.05) * np.eye(NX)
+    assert (np.linalg.eigvalsh(Hs).min(axis=1) < 0).all()
+    assert np.linalg.eigvalsh(condensed(Hs, HT, A, B)).min() > 0
+    out, out_T = reduced_convexified(Hs, HT, (A, B))
+    assert out is Hs and out_T is HT
+
+
+def test_an_active_rows_penalty_keeps_the_step_on_that_active_set():
+    """Convex on the null space of an active row of stage 2 but not beyond it: the
+    penalty on that row's normal makes the condensed Hessian positive definite and the
+    step of the equality-constrained QP (solved whole, KKT system) is the exact one."""
+    rng = np.random.default_rng(11)
+    A, B = dynamics(11)
+    Hs, HT = random_blocks(rng)
+    c = rng.normal(size=NX + NU)
+    stages, _ = condensing(A, B)
+    H0 = condensed(Hs, HT, A, B)
+    row = c @ stages[2]  # the row in the commands
+    w = np.linalg.solve(H0, row)  # curvature taken away along the row's direction
+    Hs[2] -= 1.5 * np.outer(c, c) * (1.0 / (row @ w))  # a rank-one cut, seen by the row
+    H = condensed(Hs, HT, A, B)
+    Z = np.linalg.svd(row[None])[2][1:].T  # the row's null space
+    assert np.linalg.eigvalsh(H).min() < 0 < np.linalg.eigvalsh(Z.T @ H @ Z).min()
+    lam = np.zeros((N, 1))
+    lam[2, 0] = 0.7
+    C = np.zeros((N, 1, NX + NU))
+    C[2, 0] = c
+    active = active_normals(
+        (C, np.zeros((0, NX))), (lam, np.zeros(0)), (np.zeros((N, NX + NU)), np.zeros(NX))
+    )
+    out, out_T = reduced_convexified(Hs, HT, (A, B), active)
+    Hc = condensed(out, out_T, A, B)
+    assert np.linalg.eigvalsh(Hc).min() > 0
+    rho = (out[2] - Hs[2])[np.abs(c).argmax()][np.abs(c).argmax()] / c[np.abs(c).argmax()] ** 2
+    np.testing.assert_allclose(out[2], Hs[2] + rho * np.outer(c, c), rtol=1e-12, atol=1e-12)
+    g = rng.normal(size=N * NU)
+
+    def step(Hq):
+        K = np.block([[Hq, row[:, None]], [row[None], np.zeros((1, 1))]])
+        return np.linalg.solve(K, np.concatenate([-g, [0.0]]))[: N * NU]
+
+    np.testing.assert_allclose(step(Hc), step(H), rtol=1e-9, atol=1e-12)
+
+
+def test_active_normals_against_a_loop_over_rows_and_bounds():
+    """``C_k' C_k`` summed row by row over the active rows (multiplier above the share of
+    the largest), plus 1 on each bound-held variable's diagonal; the mean squared norm
+    counts each active row and bound once."""
+    rng = np.random.default_rng(2)
+    ns, nc, ncT = NX + NU, 3, 2
+    C, C_T = rng.normal(size=(N, nc, ns)), rng.normal(size=(ncT, NX))
+    lam = np.where(rng.random((N, nc)) < 0.4, rng.normal(size=(N, nc)), 1e-12)
+    lam_T = np.array([0.5, 1e-12])
+    lam_v = np.where(rng.random((N, ns)) < 0.2, -2.0, 1e-13)
+    lam_vT = np.zeros(NX)
+    CtC, CtC_T, mean = active_normals((C, C_T), (lam, lam_T), (lam_v, lam_vT))
+    want = np.zeros((N, ns, ns))
+    norms = []
+    for k in range(N):
+        for i in range(nc):
+            if abs(lam[k, i]) > 1e-6:
+                want[k] += np.outer(C[k, i], C[k, i])
+                norms.append(C[k, i] @ C[k, i])
+        for j in range(ns):
+            if abs(lam_v[k, j]) > 1e-6:
+                want[k, j, j] += 1.0
+                norms.append(1.0)
+    np.testing.assert_allclose(CtC, want, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(CtC_T, np.outer(C_T[0], C_T[0]), rtol=1e-12, atol=1e-12)
+    norms.append(C_T[0] @ C_T[0])
+    assert mean == pytest.approx(np.mean(norms), rel=1e-12)

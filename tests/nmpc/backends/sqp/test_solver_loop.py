@@ -85,8 +85,7 @@ class ScriptedModel:
 
 
 class ScriptedSparseModel(ScriptedModel, SparseQpModel):
-    """The same script, of the sparse model's type (``_go_exact`` has a rule of its own
-    for it)."""
+    """The same script, of the sparse model's type."""
 
 
 def backend(model, **opts):
@@ -138,16 +137,15 @@ def test_a_line_search_cut_below_a_hundredth_makes_the_solves_later_qps_accurate
 @pytest.mark.parametrize(
     ("model_type", "exact"),
     [
-        # dense: exact from the first short step on, and it stays
+        # exact from the first short step on, and it stays: the same rule for both
         (ScriptedModel, [False, False, True, True, True]),
-        # sparse: exact after a full step from the second iteration on
-        (ScriptedSparseModel, [False, False, False, True, False]),
+        (ScriptedSparseModel, [False, False, True, True, True]),
     ],
 )
 def test_auto_hessian_in_the_loop_follows_go_exact_for_the_models_type(model_type, exact):
     """``hessian = "auto"``: the QPs' ``exact`` flags over five QPs, the second and the
-    fourth one's full steps refused (``_go_exact``'s rules per model type, its ``exact``
-    argument being the last QP's)."""
+    fourth one's full steps refused (``_go_exact``'s rule, its ``exact`` argument being
+    the last QP's), whichever the model's type."""
     model = model_type(kkt=[1.0] * 5 + [0.0], short={1, 3})
     run(backend(model, hessian="auto"))
     assert [c.exact for c in model.calls] == exact

@@ -22,7 +22,6 @@ from aeromanip.nmpc.backends.sqp.solver import (
     _number,
     _one_of,
 )
-from aeromanip.nmpc.backends.sqp.sparse_qp import SparseQpModel
 from aeromanip.nmpc.constraints import Bounds
 from aeromanip.nmpc.problem import Problem
 from aeromanip.nmpc.strategies import Weighted
@@ -96,22 +95,12 @@ def test_defaults_pass_their_own_checks():
 
 
 def test_auto_hessian_goes_exact_at_the_first_short_step_or_the_seventh_iteration():
-    condensed = object()  # any model but the multiple-shooting one
-    assert not _go_exact(condensed, False, 1.0, 0)
-    assert not _go_exact(condensed, False, 1.0, EXACT_FROM_ITERATION - 1)
-    assert _go_exact(condensed, False, 1.0, EXACT_FROM_ITERATION)
+    assert not _go_exact(False, 1.0, 0)
+    assert not _go_exact(False, 1.0, EXACT_FROM_ITERATION - 1)
+    assert _go_exact(False, 1.0, EXACT_FROM_ITERATION)
     assert EXACT_FROM_ITERATION == 6  # "the 7th iteration" of DEFAULTS' comment, 0-based
-    assert _go_exact(condensed, False, 0.5, 0)
-    assert _go_exact(condensed, True, 1.0, 0)  # once exact, exact for the solve
-
-
-def test_auto_hessian_on_the_sparse_model_goes_exact_near_a_solution_or_late():
-    sparse = object.__new__(SparseQpModel)  # only its type matters here
-    assert not _go_exact(sparse, False, 1.0, 1)
-    assert _go_exact(sparse, False, 1.0, 2)  # a full step from the second iteration
-    assert not _go_exact(sparse, True, 0.5, 2)  # back to Gauss-Newton after a short one
-    assert not _go_exact(sparse, False, 0.5, EXACT_FROM_ITERATION - 1)
-    assert _go_exact(sparse, False, 0.5, EXACT_FROM_ITERATION)  # where GN may cycle
+    assert _go_exact(False, 0.5, 0)
+    assert _go_exact(True, 1.0, 0)  # once exact, exact for the solve
 
 
 @pytest.mark.parametrize(("hessian", "first"), [("exact", True), ("gauss-newton", False)])

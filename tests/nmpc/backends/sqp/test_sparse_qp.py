@@ -14,7 +14,7 @@ import pytest
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.scenario import load_scenarios
 from aeromanip.nmpc.backends import SolveRequest
-from aeromanip.nmpc.backends.sqp.convexify import CONVEX_TOL, convexified_blocks
+from aeromanip.nmpc.backends.sqp.convexify import reduced_convexified
 from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
 from aeromanip.nmpc.backends.sqp.solver import (
     DEFAULTS,
@@ -428,6 +428,8 @@ def test_the_sparse_models_exact_step_falls_back_on_gauss_newton(exact_step, ok,
     the Gauss-Newton QP's step is taken instead; either is moved by the iterate's clipping
     (``lin.data["v"] - v``). The two QPs are stand-ins returning the given steps."""
     model = object.__new__(SparseQpModel)
+    model.tr = SimpleNamespace(model=SimpleNamespace(A=np.eye(2), B=np.zeros((2, 0))))
+    model._active = lambda lin, lam_c, lam_v: None
     gn_step = np.array([-0.05, 0.01])
     # positive definite stand-in blocks, told apart by their scale: 1 exact, 2 Gauss-Newton
     model._hessian_blocks = lambda lin, lam, p, exact: (
@@ -458,17 +460,17 @@ def test_the_sparse_models_exact_step_falls_back_on_gauss_newton(exact_step, ok,
     assert solvers == ["accurate"] * (1 if kept else 2)
 
 
-def test_an_indefinite_exact_hessian_is_reflected_before_hpipm_sees_it():
-    """A stage block with a negative eigenvalue below ``CONVEX_TOL`` of its largest entry:
-    HPIPM's Riccati recursion would not descend on it (at the strict hierarchy's lightly
-    regularised higher level such QPs ran to HPIPM's iteration limit), so each block is
-    given its eigenvalues' absolute values (the same eigenvectors), checked against NumPy's
-    eigendecomposition; within the tolerance the blocks go as they are."""
+def test_the_exact_hessian_reaches_the_qp_convexified_on_the_dynamics_null_space():
+    """``step`` with the exact Hessian hands the QP the blocks ``reduced_convexified``
+    gives for the model's dynamics and the last QP's active rows: an indefinite
+    condensed Hessian is changed; an indefinite block whose condensed Hessian is positive
+    definite (here: negative curvature in the pinned ``x_0``) goes as it is."""
     model = object.__new__(SparseQpModel)
-    rng = np.random.default_rng(5)
-    q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-    stage = (q * np.array([2.0, 0.5, -1e-3])) @ q.T
-    blocks = {"stage": stage[None], "terminal": np.eye(3)}
+    A, B = np.eye(2), np.array([[1.0], [0.5]])
+    model.tr = SimpleNamespace(model=SimpleNamespace(A=A, B=B))
+    model.ns, model.nz = 3, 2
+    model._active = lambda lin, lam_c, lam_v: None
+    blocks = {"stage": np.diag([-1e-3, 0.5, 2.0])[None], "terminal": np.eye(2)}
     model._hessian_blocks = lambda lin, lam, p, exact: (blocks["stage"], blocks["terminal"])
     seen = []
     model.qp = model.qp_accurate = "qp"
@@ -477,38 +479,11 @@ def test_an_indefinite_exact_hessian_is_reflected_before_hpipm_sees_it():
     )
     lin = SimpleNamespace(grad=np.ones(3), data={"v": np.zeros(3)})
     model.step(np.zeros(3), lin, np.zeros(1), np.zeros(3), np.zeros(0), True)
-    ((Hs, HT),) = seen
-    np.testing.assert_allclose(Hs[0], (q * np.array([2.0, 0.5, 1e-3])) @ q.T, atol=1e-12)
-    np.testing.assert_allclose(HT, np.eye(3), atol=1e-12)
-    seen.clear()  # -1e-10 of the largest entry: within CONVEX_TOL, solved as it is
-    blocks["stage"] = ((q * np.array([2.0, 0.5, -2e-10])) @ q.T)[None]
+    assert seen[0][0] is blocks["stage"]  # x_0 is pinned: its curvature does not count
+    seen.clear()  # the command's curvature below what the terminal cost gives back
+    blocks["stage"] = np.diag([1.0, 0.5, -3.0])[None]
     model.step(np.zeros(3), lin, np.zeros(1), np.zeros(3), np.zeros(0), True)
-    assert seen[0][0] is blocks["stage"]
-
-
-@pytest.mark.parametrize(
-    ("largest", "lowest", "reflected"),
-    [
-        (2000.0, -200.0 * CONVEX_TOL, False),  # within 1e-9 of the largest entry (2e-6)
-        (2000.0, -3000.0 * CONVEX_TOL, True),
-        (0.5, -1.5 * CONVEX_TOL, True),  # small entries: the tolerance is 1e-9, not less
-        (0.5, -0.5 * CONVEX_TOL, False),
-    ],
-)
-def test_the_convexity_tolerance_is_relative_to_the_largest_entry_and_at_least_absolute(
-    largest, lowest, reflected
-):
-    """``convexified_blocks``' test: a block is indefinite below ``-CONVEX_TOL`` times the stage
-    blocks' largest entry, or ``-CONVEX_TOL`` where that is below 1; the blocks are given
-    their eigenvalues' absolute values (checked by NumPy) or returned as they are."""
-    q = np.linalg.qr(np.random.default_rng(7).normal(size=(3, 3)))[0]
-    lam = np.array([largest, 0.25 * largest, lowest])
-    stage = ((q * lam) @ q.T)[None]
-    assert np.abs(stage).max() <= largest  # the largest entry is at most the top eigenvalue
-    terminal = np.eye(3)
-    Hs, HT = convexified_blocks(stage, terminal)
-    if reflected:
-        np.testing.assert_allclose(Hs[0], (q * np.abs(lam)) @ q.T, atol=1e-9 * largest)
-        assert np.linalg.eigvalsh(Hs[0]).min() == pytest.approx(-lowest, rel=1e-3)
-    else:
-        assert Hs is stage and HT is terminal
+    want = reduced_convexified(blocks["stage"], blocks["terminal"], (A, B))
+    np.testing.assert_array_equal(seen[0][0], want[0])
+    reduced = B.T @ blocks["terminal"] @ B  # B' P B, P the terminal block
+    assert -3.0 + reduced[0, 0] < 0.0 < seen[0][0][0, 2, 2] + reduced[0, 0]

@@ -11,7 +11,9 @@ How it is built, and why:
   its first shortened step or 7th iteration. Where it is indefinite, a penalty on the
   active constraints' normals makes it positive definite without changing the step on
   that active set (Newton's convergence kept); only where that fails are the
-  eigenvalues reflected.
+  eigenvalues reflected. On the sparse model the test is on the Riccati recursion's
+  pivots, not the blocks: blocks may be indefinite where the problem is convex on the
+  dynamics' null space (``convexify.reduced_convexified``).
 * **The QP by the horizon's length.** Short horizons: the model ``x[k+1] = x[k] + dt u[k]``
   is linear, so the NLP is condensed exactly onto the commands (``condensed_qp``: a dense
   QP, DAQP on the rows that may bind). Long horizons: every stage keeps its variables
@@ -31,7 +33,7 @@ How it is built, and why:
 * **Globalisation:** an l1 merit function with Armijo backtracking; a rejected full step
   that raised the rows' violation is retried once with a second-order correction (the
   rows taken at its end: curved rows, the Maratos effect; both QP models), and after a
-  shortened step the Hessian is damped (Levenberg-Marquardt, condensed model only).
+  shortened step the Hessian is damped (Levenberg-Marquardt).
 * **Seeding** (``seed="ipopt"``): on a cold start (no multipliers: the first step, a
   reset, a retry) IPOPT solves first and the SQP polishes its answer; an answer costing
   more than ``seed_ratio`` times the last one's is solved so too, the cheaper kept (not
@@ -400,7 +402,7 @@ class SqpBackend(Backend):
             damping = _damping(damping, alpha)
             accurate = accurate or alpha < ACCURATE_QPS_BELOW
             exact = o["hessian"] == "exact" or (
-                o["hessian"] == "auto" and _go_exact(model, exact, alpha, it)
+                o["hessian"] == "auto" and _go_exact(exact, alpha, it)
             )
         w, lam_g, lam_x = model.result(v, p, lam_c, lam_v)
         ok = ok and bool(np.all(np.isfinite(w)))
@@ -446,20 +448,15 @@ def _cheaper(a: NlpResult, b: NlpResult) -> NlpResult:
     return best
 
 
-def _go_exact(model: QpModel, exact: bool, alpha: float, it: int) -> bool:
+def _go_exact(exact: bool, alpha: float, it: int) -> bool:
     """``hessian="auto"``: whether the next iteration uses the exact Hessian.
 
-    Condensed: Gauss-Newton converges slowly where residuals are large, so go exact at
-    the first shortened step or the ``EXACT_FROM_ITERATION``-th iteration (its Hessian is
-    convexified on the reduced problem). Multiple shooting: the exact stage blocks may be
-    indefinite, so near a solution (after a full step; back to Gauss-Newton after a
-    shortened one) and from the ``EXACT_FROM_ITERATION``-th iteration on, where
-    Gauss-Newton may never converge (a large residual against an active state bound: it
-    cycled to the iteration limit); ``SparseQpModel.step`` falls back to
+    Gauss-Newton converges slowly where residuals are large, so go exact at the first
+    shortened step or the ``EXACT_FROM_ITERATION``-th iteration, and stay: both QP
+    models convexify it on the reduced problem (the condensed Hessian, or the Riccati
+    recursion's pivots of the per-stage blocks); ``SparseQpModel.step`` falls back to
     Gauss-Newton for an exact QP that fails or does not descend.
     """
-    if isinstance(model, SparseQpModel):
-        return (alpha == 1.0 and it >= 2) or it >= EXACT_FROM_ITERATION
     return exact or alpha < 1.0 or it >= EXACT_FROM_ITERATION
 
 

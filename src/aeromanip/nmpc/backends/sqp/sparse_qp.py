@@ -7,9 +7,10 @@ horizon give the weighted residuals and rows with their Jacobians in the stage's
 variables; the Gauss-Newton Hessian is then block diagonal (one block per stage) and
 the gap rows are constant. So generated code, build time and memory do not grow with
 the horizon, and a QP costs ``O(N)``. The exact Hessian (``hessian="exact"``/``"auto"``)
-is per stage too; its blocks may be indefinite (HPIPM's Riccati recursion only needs the
-problem convex on the null space of the dynamics), and where the QP fails with it or
-its step does not descend, the step is taken with the Gauss-Newton Hessian instead.
+is per stage too; its blocks may be indefinite (a Riccati recursion only needs the
+problem convex on the null space of the dynamics: ``convexify.reduced_convexified``
+makes it so where it is not), and where the QP fails with it or its step does not
+descend, the step is taken with the Gauss-Newton Hessian instead.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import numpy as np
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends.base import SolveRequest
 from aeromanip.nmpc.backends.codegen import Buffered, compiled_all
-from aeromanip.nmpc.backends.sqp.convexify import convexified_blocks
+from aeromanip.nmpc.backends.sqp.convexify import active_normals, reduced_convexified
 from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
 from aeromanip.nmpc.backends.sqp.hpipm import (
     HPIPM_LIMITS,
@@ -406,14 +407,21 @@ class SparseQpModel:
         damping: float = 0.0,
         accurate: bool = False,
     ) -> QpResult:
-        """The sparse QP, solved by HPIPM (with the exact Hessian if asked and it gives a
+        """The sparse QP (with the exact Hessian, convexified, if asked and it gives a
         descending step, else with the Gauss-Newton one), to its tightest residuals if
-        ``accurate`` (``qp_tolerance``). ``damping`` is not used: on this model it made
-        the hierarchy's levels stall (the flight at 10 Hz)."""
+        ``accurate`` (``qp_tolerance``); ``damping`` times the blocks' largest diagonal
+        entry is added to their diagonals (a Levenberg-Marquardt step)."""
         qp = self.qp_accurate if accurate else self.qp
-        blocks = self._hessian_blocks(lin, lam_c, p, exact)
-        if exact:  # HPIPM would not descend on an indefinite block
-            blocks = convexified_blocks(*blocks)
+        Hs, HT = self._hessian_blocks(lin, lam_c, p, exact)
+        if exact:  # convex on the dynamics' null space (convexify.reduced_convexified)
+            dynamics = (self.tr.model.A, self.tr.model.B)
+            Hs, HT = reduced_convexified(Hs, HT, dynamics, self._active(lin, lam_c, lam_v))
+        if damping:
+            diagonal = np.concatenate([np.diagonal(Hs, axis1=1, axis2=2).ravel(), np.diag(HT)])
+            top = damping * float(diagonal.max())
+            Hs = Hs + top * np.eye(self.ns)
+            HT = HT + top * np.eye(self.nz)
+        blocks = (Hs, HT)
         res = self._qp(qp, lin, *blocks)
         huge = np.abs(res.d).max(initial=0.0) > MAX_STEP  # unbounded: an indefinite QP
         if exact and (not res.ok or huge or float(lin.grad @ res.d) > 0.0):
@@ -422,6 +430,18 @@ class SparseQpModel:
         self._last_qp = (qp, blocks)
         res.d += lin.data["v"] - v  # the step is taken from the clipped iterate
         return res
+
+    def _active(
+        self, lin: Linearization, lam_c: np.ndarray, lam_v: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """``convexify.active_normals`` of the rows and bounds active at the last QP."""
+        N, ns, nc = self.N, self.ns, self.nc
+        flat = self._rows_flat(lam_c)
+        return active_normals(
+            self._blocks(lin),
+            (flat[: N * nc].reshape(N, nc), flat[N * nc :]),
+            (lam_v[: N * ns].reshape(N, ns), lam_v[N * ns :]),
+        )
 
     def correction(
         self, v: np.ndarray, d: np.ndarray, lin: Linearization, p: np.ndarray
