@@ -16,7 +16,9 @@ from aeromanip.nmpc.backends.sqp.convexify import (
     active_normals,
     convexified,
     reduced_convexified,
+    riccati_pivots,
 )
+from aeromanip.nmpc.backends.sqp.ocp_ipm import CompiledPivots
 
 
 def numpy_convexified(H, C, fixed):
@@ -206,3 +208,32 @@ def test_active_normals_against_a_loop_over_rows_and_bounds():
     np.testing.assert_allclose(CtC_T, np.outer(C_T[0], C_T[0]), rtol=1e-12, atol=1e-12)
     norms.append(C_T[0] @ C_T[0])
     assert mean == pytest.approx(np.mean(norms), rel=1e-12)
+
+
+@pytest.mark.parametrize("shift", [0.0, 2.0, 30.0])
+@pytest.mark.parametrize("sparse_dynamics", [False, True])
+def test_the_compiled_recursion_decides_and_reflects_as_numpys(shift, sparse_dynamics):
+    """``ocp_ipm.CompiledPivots`` (C: Cholesky where it decides, Jacobi otherwise, the
+    dynamics' zeros skipped) against ``riccati_pivots`` (NumPy's ``eigh`` at every
+    stage): the same verdict, the same reflected blocks, the input left as it was."""
+    pivots = CompiledPivots.create(EIGEN_FLOOR)
+    if pivots is None:
+        pytest.skip("no C compiler")
+    rng = np.random.default_rng(int(10 * shift) + sparse_dynamics)
+    A, B = dynamics(int(shift))
+    if sparse_dynamics:  # positions integrate rates, as the kinematic model's
+        A = np.eye(NX)
+        A[:2, 2:] = 0.5 * np.eye(2)
+        B = np.zeros((NX, NU))
+        B[2:, :2] = np.eye(2)
+    AB = np.hstack([A, B])
+    Hs, HT = random_blocks(rng, shift=shift)
+    before = Hs.copy()
+    checked = riccati_pivots(Hs, HT, AB, reflect=False)
+    assert (pivots(Hs, HT, AB, reflect=False) is None) == (checked is None)
+    want = riccati_pivots(Hs, HT, AB, reflect=True)
+    got = pivots(Hs, HT, AB, reflect=True)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-11 * np.abs(want).max())
+    np.testing.assert_array_equal(Hs, before)
+    if shift == 0.0:
+        assert checked is Hs  # positive definite blocks: nothing to change

@@ -246,7 +246,8 @@ def test_a_build_failure_is_one_warning(monkeypatch, tmp_path, caplog):
     from dataclasses import replace
 
     monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
-    (tmp_path / "ocp_ipm.c").write_text("this is not C\n")
+    for name in ocp_ipm.SPEC.sources:
+        (tmp_path / name).write_text("this is not C\n")
     (tmp_path / "ocp_ipm.h").write_text("\n")
     monkeypatch.setattr(ocp_ipm, "SPEC", replace(ocp_ipm.SPEC, directory=tmp_path))
     with caplog.at_level(logging.WARNING):

@@ -4,6 +4,8 @@ blocks of a problem with linear dynamics)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 CONVEXIFY_DECADES = 5  # penalties rho tried on the active normals: base * 10**(0..4)
@@ -42,7 +44,7 @@ def convexified(H: np.ndarray, C: np.ndarray, fixed: np.ndarray) -> np.ndarray:
     return (V * lam) @ V.T
 
 
-def _riccati_pivots(
+def riccati_pivots(
     stage_blocks: np.ndarray, terminal_block: np.ndarray, AB: np.ndarray, reflect: bool
 ) -> np.ndarray | None:
     """The recursion of ``reduced_convexified``: the stage blocks (a copy where one
@@ -73,6 +75,7 @@ def reduced_convexified(
     terminal_block: np.ndarray,
     dynamics: tuple[np.ndarray, np.ndarray],
     active: tuple[np.ndarray, np.ndarray, float] | None = None,
+    pivots: Callable[..., np.ndarray | None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-stage Hessian blocks made convex on the dynamics' null space, sparsity kept.
 
@@ -86,18 +89,20 @@ def reduced_convexified(
     that active set; failing that, each indefinite pivot's eigenvalues are reflected
     (``|lambda|``, floored) by a change of ``R_k`` alone (Verschueren et al. 2017,
     "Sparsity preserving convexification"; acados' ``PROJECT_REDUC_HESS`` projects
-    them instead)."""
+    them instead). ``pivots``: the recursion (``riccati_pivots``' signature; default
+    it, in NumPy; ``ocp_ipm.CompiledPivots`` is the same in C)."""
+    pivots = pivots or riccati_pivots
     AB = np.hstack(dynamics)
-    if _riccati_pivots(stage_blocks, terminal_block, AB, reflect=False) is not None:
+    if pivots(stage_blocks, terminal_block, AB, reflect=False) is not None:
         return stage_blocks, terminal_block
     if active is not None and active[2] > 0.0:
         CtC, CtC_T, mean_norm = active
         scale = max(float(np.abs(np.diagonal(stage_blocks, axis1=1, axis2=2)).max()), 1e-8)
         for rho in scale / mean_norm * 10.0 ** np.arange(CONVEXIFY_DECADES):
             Hs, HT = stage_blocks + rho * CtC, terminal_block + rho * CtC_T
-            if _riccati_pivots(Hs, HT, AB, reflect=False) is not None:
+            if pivots(Hs, HT, AB, reflect=False) is not None:
                 return Hs, HT
-    reflected = _riccati_pivots(stage_blocks, terminal_block, AB, reflect=True)
+    reflected = pivots(stage_blocks, terminal_block, AB, reflect=True)
     assert reflected is not None  # reflecting, the recursion always ends
     return reflected, terminal_block
 

@@ -24,4 +24,12 @@ int ocp_ipm_solve(OcpIpm* s, const double* H, const double* g, const double* b,
                   const double* ub, const double* x0, const double* settings, double* y_out,
                   double* lam_dyn, double* lam_c, double* lam_y, OcpIpmInfo* info);
 
+/* riccati_pivots.c: 1 if every pivot of the Riccati recursion of the blocks H (N of ns x
+ * ns, ns = nx + nu) and HT (nx x nx) for AB = [A B] is positive definite (their
+ * eigenvalues at least floor_share of the largest magnitude, or of 1e-3), 0 at the first
+ * that is not; with reflect, such pivots are made definite by a change of H's u-blocks
+ * and 1 is returned. work: nx^2 + nx ns + ns^2 + 2 nu^2 + nu + nx nu doubles. */
+int riccati_pivots(int N, int nx, int nu, const double* AB, double* H, const double* HT,
+                   int reflect, double floor_share, double* work);
+
 #endif

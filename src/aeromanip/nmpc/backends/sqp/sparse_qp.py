@@ -24,7 +24,11 @@ import numpy as np
 from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends.base import SolveRequest
 from aeromanip.nmpc.backends.codegen import Buffered, compiled_all
-from aeromanip.nmpc.backends.sqp.convexify import active_normals, reduced_convexified
+from aeromanip.nmpc.backends.sqp.convexify import (
+    EIGEN_FLOOR,
+    active_normals,
+    reduced_convexified,
+)
 from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
 from aeromanip.nmpc.backends.sqp.hpipm import (
     HPIPM_LIMITS,
@@ -32,7 +36,7 @@ from aeromanip.nmpc.backends.sqp.hpipm import (
     hpipm_solver,
     qp_tolerance,
 )
-from aeromanip.nmpc.backends.sqp.ocp_ipm import RiccatiQp
+from aeromanip.nmpc.backends.sqp.ocp_ipm import CompiledPivots, RiccatiQp
 from aeromanip.nmpc.backends.sqp.optimality import complementarity, l1
 from aeromanip.nmpc.backends.sqp.qp_model import Linearization
 from aeromanip.nmpc.transcription import COUPLING, Transcription
@@ -75,6 +79,8 @@ class SparseQpModel:
         self._pattern()
         self.lbw0, self.ubw0 = tr.lbw.copy(), tr.ubw.copy()
         self._last_qp: tuple[Buffered, tuple[np.ndarray, np.ndarray]] | None = None  # step's
+        #: the convexification's Riccati recursion in C (``None``: NumPy's)
+        self._pivots = CompiledPivots.create(EIGEN_FLOOR)
 
     # -- building ------------------------------------------------------------------------
     def _rows(self) -> None:
@@ -415,7 +421,8 @@ class SparseQpModel:
         Hs, HT = self._hessian_blocks(lin, lam_c, p, exact)
         if exact:  # convex on the dynamics' null space (convexify.reduced_convexified)
             dynamics = (self.tr.model.A, self.tr.model.B)
-            Hs, HT = reduced_convexified(Hs, HT, dynamics, self._active(lin, lam_c, lam_v))
+            active = self._active(lin, lam_c, lam_v)
+            Hs, HT = reduced_convexified(Hs, HT, dynamics, active, self._pivots)
         if damping:
             diagonal = np.concatenate([np.diagonal(Hs, axis1=1, axis2=2).ravel(), np.diag(HT)])
             top = damping * float(diagonal.max())
