@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 
 from aeromanip.nmpc.backends.sqp.convexify import (
+    CONVEX_TOL,
     CONVEXIFY_DECADES,
     EIGEN_FLOOR,
     active_normals,
     convexified,
+    convexified_blocks,
     reduced_convexified,
     riccati_pivots,
 )
@@ -237,3 +239,31 @@ def test_the_compiled_recursion_decides_and_reflects_as_numpys(shift, sparse_dyn
     np.testing.assert_array_equal(Hs, before)
     if shift == 0.0:
         assert checked is Hs  # positive definite blocks: nothing to change
+
+
+@pytest.mark.parametrize(
+    ("largest", "lowest", "reflected"),
+    [
+        (2000.0, -200.0 * CONVEX_TOL, False),  # within 1e-9 of the largest entry (2e-6)
+        (2000.0, -3000.0 * CONVEX_TOL, True),
+        (0.5, -1.5 * CONVEX_TOL, True),  # small entries: the tolerance is 1e-9, not less
+        (0.5, -0.5 * CONVEX_TOL, False),
+    ],
+)
+def test_the_convexity_tolerance_is_relative_to_the_largest_entry_and_at_least_absolute(
+    largest, lowest, reflected
+):
+    """``convexified_blocks``' test: a block is indefinite below ``-CONVEX_TOL`` times the stage
+    blocks' largest entry, or ``-CONVEX_TOL`` where that is below 1; the blocks are given
+    their eigenvalues' absolute values (checked by NumPy) or returned as they are."""
+    q = np.linalg.qr(np.random.default_rng(7).normal(size=(3, 3)))[0]
+    lam = np.array([largest, 0.25 * largest, lowest])
+    stage = ((q * lam) @ q.T)[None]
+    assert np.abs(stage).max() <= largest  # the largest entry is at most the top eigenvalue
+    terminal = np.eye(3)
+    Hs, HT = convexified_blocks(stage, terminal)
+    if reflected:
+        np.testing.assert_allclose(Hs[0], (q * np.abs(lam)) @ q.T, atol=1e-9 * largest)
+        assert np.linalg.eigvalsh(Hs[0]).min() == pytest.approx(-lowest, rel=1e-3)
+    else:
+        assert Hs is stage and HT is terminal

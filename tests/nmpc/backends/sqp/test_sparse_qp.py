@@ -14,8 +14,9 @@ import pytest
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.scenario import load_scenarios
 from aeromanip.nmpc.backends import SolveRequest
-from aeromanip.nmpc.backends.sqp.convexify import reduced_convexified
+from aeromanip.nmpc.backends.sqp.convexify import convexified_blocks, reduced_convexified
 from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
+from aeromanip.nmpc.backends.sqp.ocp_ipm import RiccatiQp
 from aeromanip.nmpc.backends.sqp.solver import (
     DEFAULTS,
     SqpBackend,
@@ -460,11 +461,14 @@ def test_the_sparse_models_exact_step_falls_back_on_gauss_newton(exact_step, ok,
     assert solvers == ["accurate"] * (1 if kept else 2)
 
 
-def test_the_exact_hessian_reaches_the_qp_convexified_on_the_dynamics_null_space():
+@pytest.mark.parametrize("solver", ["riccati", "hpipm"])
+def test_the_exact_hessian_reaches_the_qp_convexified_on_the_dynamics_null_space(solver):
     """``step`` with the exact Hessian hands the QP the blocks ``reduced_convexified``
     gives for the model's dynamics and the last QP's active rows: an indefinite
     condensed Hessian is changed; an indefinite block whose condensed Hessian is positive
-    definite (here: negative curvature in the pinned ``x_0``) goes as it is."""
+    definite (here: negative curvature in the pinned ``x_0``) goes as it is to the
+    Riccati interior point, and reflected (``convexified_blocks``) to HPIPM, whose
+    square-root recursion factors every block."""
     model = object.__new__(SparseQpModel)
     A, B = np.eye(2), np.array([[1.0], [0.5]])
     model.tr = SimpleNamespace(model=SimpleNamespace(A=A, B=B))
@@ -473,17 +477,22 @@ def test_the_exact_hessian_reaches_the_qp_convexified_on_the_dynamics_null_space
     blocks = {"stage": np.diag([-1e-3, 0.5, 2.0])[None], "terminal": np.eye(2)}
     model._hessian_blocks = lambda lin, lam, p, exact: (blocks["stage"], blocks["terminal"])
     seen = []
-    model.qp = model.qp_accurate = "qp"
+    model.qp = model.qp_accurate = object.__new__(RiccatiQp) if solver == "riccati" else "qp"
     model._qp = lambda qp, lin, Hs, HT: (
         seen.append((Hs, HT)) or QpResult(np.zeros(3), np.zeros(1), np.zeros(3), True, "")
     )
     lin = SimpleNamespace(grad=np.ones(3), data={"v": np.zeros(3)})
     model.step(np.zeros(3), lin, np.zeros(1), np.zeros(3), np.zeros(0), True)
-    assert seen[0][0] is blocks["stage"]  # x_0 is pinned: its curvature does not count
+    if solver == "riccati":
+        assert seen[0][0] is blocks["stage"]  # x_0 is pinned: its curvature does not count
+    else:
+        np.testing.assert_allclose(seen[0][0][0], np.diag([1e-3, 0.5, 2.0]), atol=1e-15)
     seen.clear()  # the command's curvature below what the terminal cost gives back
     blocks["stage"] = np.diag([1.0, 0.5, -3.0])[None]
     model.step(np.zeros(3), lin, np.zeros(1), np.zeros(3), np.zeros(0), True)
     want = reduced_convexified(blocks["stage"], blocks["terminal"], (A, B))
+    if solver == "hpipm":
+        want = convexified_blocks(*want)
     np.testing.assert_array_equal(seen[0][0], want[0])
     reduced = B.T @ blocks["terminal"] @ B  # B' P B, P the terminal block
     assert -3.0 + reduced[0, 0] < 0.0 < seen[0][0][0, 2, 2] + reduced[0, 0]

@@ -1,6 +1,7 @@
 """Hessian convexification for the SQP's QPs: a penalty on the active rows' normals
 (dense Hessians), or the Riccati recursion's pivots made positive definite (per-stage
-blocks of a problem with linear dynamics)."""
+blocks of a problem with linear dynamics), or each block's eigenvalues reflected (for a
+QP solver that needs every block positive semi-definite)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 
 CONVEXIFY_DECADES = 5  # penalties rho tried on the active normals: base * 10**(0..4)
 EIGEN_FLOOR = 1e-6  # reflected eigenvalues kept above this share of the largest (or 1e-3)
+CONVEX_TOL = 1e-9  # an eigenvalue below -tol x the largest entry: an indefinite block
 #: a row or bound is active at an interior point's answer where its multiplier is above
 #: this share of the largest (at least 1): inactive ones fall to ~mu / slack
 ACTIVE_SHARE = 1e-6
@@ -42,6 +44,24 @@ def convexified(H: np.ndarray, C: np.ndarray, fixed: np.ndarray) -> np.ndarray:
     lam, V = np.linalg.eigh(H)
     lam = np.maximum(np.abs(lam), EIGEN_FLOOR * max(np.abs(lam).max(), 1e-3))
     return (V * lam) @ V.T
+
+
+def convexified_blocks(
+    stage_blocks: np.ndarray, terminal_block: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The stage (``(N, n, n)``) and terminal Hessian blocks as they are if all are
+    positive semi-definite (to ``CONVEX_TOL`` of the stage blocks' largest entry), else
+    each with its eigenvalues' absolute values (one eigendecomposition per block)."""
+    lam_s, vec_s = np.linalg.eigh(stage_blocks)
+    lam_t, vec_t = np.linalg.eigh(terminal_block)
+    scale = max(1.0, float(np.abs(stage_blocks).max(initial=0.0)))
+    if min(lam_s.min(initial=0.0), lam_t.min(initial=0.0)) >= -CONVEX_TOL * scale:
+        return stage_blocks, terminal_block
+
+    def reflected(lam: np.ndarray, vec: np.ndarray) -> np.ndarray:
+        return (vec * np.abs(lam)[..., None, :]) @ np.swapaxes(vec, -1, -2)
+
+    return reflected(lam_s, vec_s), reflected(lam_t, vec_t)
 
 
 def riccati_pivots(

@@ -27,6 +27,7 @@ from aeromanip.nmpc.backends.codegen import Buffered, compiled_all
 from aeromanip.nmpc.backends.sqp.convexify import (
     EIGEN_FLOOR,
     active_normals,
+    convexified_blocks,
     reduced_convexified,
 )
 from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
@@ -423,6 +424,8 @@ class SparseQpModel:
             dynamics = (self.tr.model.A, self.tr.model.B)
             active = self._active(lin, lam_c, lam_v)
             Hs, HT = reduced_convexified(Hs, HT, dynamics, active, self._pivots)
+            if not isinstance(qp, RiccatiQp):  # HPIPM's square-root Riccati recursion
+                Hs, HT = convexified_blocks(Hs, HT)  # factors each block: PSD ones only
         if damping:
             diagonal = np.concatenate([np.diagonal(Hs, axis1=1, axis2=2).ravel(), np.diag(HT)])
             top = damping * float(diagonal.max())
