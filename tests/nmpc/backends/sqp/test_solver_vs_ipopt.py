@@ -431,3 +431,28 @@ def test_a_hierarchy_needs_a_task_with_a_level():
         ConfigError, match=r"^tasks: a hierarchy needs at least one task with a level$"
     ):
         Hierarchical(pb)
+
+
+def test_the_ipopt_seed_answers_within_the_bounds_where_plain_ipopt_relaxes_them():
+    """The stress bench's ``fast`` flight (velocity bounds binding from the first step):
+    IPOPT with its defaults answers up to ~1e-8 beyond an active bound (its
+    ``bound_relax_factor``); the SQP's seed, built by ``_seeded``, answers within every
+    bound exactly, so a strict hierarchy's next level starts feasible."""
+    from aeromanip.bench.controller_speed import bench_scenario
+    from aeromanip.nmpc.backends import SolveRequest, make_backend
+
+    sc = bench_scenario("fast", 10.0)
+    ctrl = Controller(sc.problem, "weighted", "sqp", {"codegen": False})
+    tr, backend = ctrl.strategy.transcription, ctrl.strategy.solvers[0].backend
+    p = tr.parameters(sc.x0, np.zeros(sc.x0.size), sc.problem.stage_params(2.0))
+    request = SolveRequest(ctrl.initial_guesses(sc.x0)[0], p, tr.lbg, tr.ubg)
+    lbw, ubw = tr.variable_bounds(p)
+
+    def beyond(w):
+        return max((lbw - w).max(), (w - ubw).max())
+
+    plain = make_backend(tr, "ipopt", {}).solve(request)
+    assert plain.success and beyond(plain.w) > 1e-9  # relaxed: the contrast is real
+    backend._seeded(request)
+    seed = backend._ipopt.solve(request)
+    assert seed.success and beyond(seed.w) <= 0.0

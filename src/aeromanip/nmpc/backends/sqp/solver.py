@@ -305,7 +305,11 @@ class SqpBackend(Backend):
         both is counted; ``iterations`` counts the QPs only."""
         self.seeds += 1
         if self._ipopt is None:
-            opts = {"ipopt.max_iter": int(self.opts["seed_max_iter"])}
+            # IPOPT relaxes every bound by 1e-8 by default; from an answer outside its box a
+            # strict hierarchy's lower level found its first QP infeasible (the higher
+            # level's rows pinned, a state just beyond its bound) and fell back on IPOPT
+            opts = {"ipopt.max_iter": int(self.opts["seed_max_iter"]),
+                    "ipopt.bound_relax_factor": 0.0}  # fmt: skip
             self._ipopt = make_backend(self.tr, "ipopt", opts)
         cold = request.cold_from(request.w0)
         first = self._ipopt.solve(cold)
