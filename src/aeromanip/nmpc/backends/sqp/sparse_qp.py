@@ -80,8 +80,10 @@ class SparseQpModel:
         self._pattern()
         self.lbw0, self.ubw0 = tr.lbw.copy(), tr.ubw.copy()
         self._last_qp: tuple[Buffered, tuple[np.ndarray, np.ndarray]] | None = None  # step's
-        #: the convexification's Riccati recursion in C (``None``: NumPy's)
-        self._pivots = CompiledPivots.create(EIGEN_FLOOR)
+        #: the convexification's Riccati recursion in C, in the Riccati solver's library
+        #: (``None``: NumPy's, as with HPIPM, which is what runs without a compiler)
+        riccati = isinstance(self.qp, RiccatiQp)
+        self._pivots = CompiledPivots.create(EIGEN_FLOOR) if riccati else None
 
     # -- building ------------------------------------------------------------------------
     def _rows(self) -> None:
