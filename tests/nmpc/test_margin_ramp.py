@@ -165,3 +165,20 @@ def test_the_violation_is_how_far_a_state_lies_outside_its_box():
     for z, out in ((0.75, 0.05), (1.6, 0.1)):
         x[k] = z
         assert b.violation(x) == pytest.approx(out)
+
+
+def test_several_coasting_states_at_once_get_the_bounds_of_each_alone():
+    """``return_bounds`` on a (k, nx) stack of coasting states with their times (k, 1),
+    as ``variable_bounds`` asks, against one call per state; the last time is past the
+    ramp (the full margin)."""
+    b = limits().tightened(MARGINS, 0.3)
+    rng = np.random.default_rng(3)
+    finite = np.where(np.isfinite(b.x_upper), b.x_upper, 1.0)
+    coast = finite + rng.uniform(-0.03, 0.03, size=(4, 7))
+    times = np.array([[0.0], [0.1], [0.25], [0.4]])
+    lo, hi = b.return_bounds(coast, times)
+    for k in range(4):
+        lo_k, hi_k = b.return_bounds(coast[k], float(times[k, 0]))
+        np.testing.assert_array_equal(lo[k], lo_k)
+        np.testing.assert_array_equal(hi[k], hi_k)
+    np.testing.assert_array_equal(hi[3], b.x_upper)  # past the ramp: nothing to give

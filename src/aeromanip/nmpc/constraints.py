@@ -133,16 +133,20 @@ class Bounds:
             float(ramp),
         )
 
-    def return_bounds(self, x_coast: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def return_bounds(
+        self, x_coast: np.ndarray, t: float | np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The bounds of a state predicted ``t`` [s] ahead, given ``x_coast``, where the
         vehicle would be then with its commands set to zero: the tightened bounds, but a
         plan may go as far into the margin as that coasting state, up to a share
         ``1 - t / margin_ramp`` of the margin (all of it now, none from ``margin_ramp``
         on). Braking into the margin is soft, coming back takes ``margin_ramp``, and a
-        plan can never go further out than the vehicle would coast."""
-        if self.margin is None or self.margin_ramp <= 0 or t >= self.margin_ramp:
+        plan can never go further out than the vehicle would coast. Several states at
+        once: ``x_coast`` (k, nx) and ``t`` (k, 1)."""
+        if self.margin is None or self.margin_ramp <= 0 or np.all(t >= self.margin_ramp):
             return self.x_lower, self.x_upper
-        room = (1.0 - t / self.margin_ramp) * self.margin
+        share = np.maximum(1.0 - np.asarray(t, dtype=float) / self.margin_ramp, 0.0)
+        room = share * self.margin  # none from margin_ramp on
         above = np.clip(x_coast - self.x_upper, 0.0, room)
         below = np.clip(self.x_lower - x_coast, 0.0, room)
         return self.x_lower - below, self.x_upper + above

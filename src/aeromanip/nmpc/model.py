@@ -26,6 +26,7 @@ import numpy as np
 from aeromanip.errors import ConfigError
 
 MAX_TAU = 10.0  # [s] a slower response is not a rate loop
+SHORT_ROLLOUT = 8  # steps up to which a rollout with rate responses is a loop, not a filter
 
 
 def _response_terms(tau: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -107,13 +108,37 @@ class RateModel:
         """The augmented states (N+1, nz) under commands ``U`` (N, nx)."""
         Z = np.empty((len(U) + 1, self.nz))
         Z[0] = z0
-        if not self.has_response:  # x[k] = x[0] + dt (u[0] + ... + u[k-1]), v[k] = u[k-1]
-            Z[1:, : self.nx] = z0[: self.nx] + self.dt * np.cumsum(U, axis=0)
-            Z[1:, self.nx :] = U
+        nx, U = self.nx, np.asarray(U, dtype=float)
+        if self.has_response and len(U) <= SHORT_ROLLOUT:  # a filter costs more here
+            for k, u in enumerate(U):
+                Z[k + 1] = self.A @ Z[k] + self.B @ u
             return Z
-        for k, u in enumerate(U):
-            Z[k + 1] = self.A @ Z[k] + self.B @ u
+        step = self.dt * U  # x[k+1] - x[k], before the lag's share
+        Z[1:, nx : 2 * nx] = U  # v[k] = u[k-1]
+        if self.has_response:  # per lagged DoF r[k+1] = a r[k] + (1 - a) u[k]: a filter
+            lag = self.lagged
+            a, c = _response_terms(self.tau[lag], self.dt)
+            inputs = np.concatenate([z0[None, 2 * nx :], U[:, lag]]).T[:, :, None]
+            R = (self._lag_filter(len(U), a) @ inputs)[:, :, 0].T  # (n, lagged): r[1..n]
+            Z[1:, 2 * nx :] = R
+            before = np.concatenate([z0[None, 2 * nx :], R[:-1]])  # r[0..n-1]
+            step[:, lag] += c * (before - U[:, lag])
+        Z[1:, :nx] = z0[:nx] + np.cumsum(step, axis=0)
         return Z
+
+    def _lag_filter(self, n: int, a: np.ndarray) -> np.ndarray:
+        """Per lagged DoF the map (n, 1 + n) from ``[r[0], u[0..n-1]]`` to ``r[1..n]``
+        (``a^(k+1)`` on ``r[0]``, ``(1 - a) a^(k-j)`` on ``u[j]``, ``j <= k``), shape
+        (lagged, n, 1 + n); built once per length."""
+        cache = self.__dict__.setdefault("_filters", {})
+        if n not in cache:
+            k = np.arange(n)[:, None]
+            j = np.arange(n)[None, :]
+            power = np.where(j <= k, k - j, 0)[None]  # (1, n, n)
+            aa = a[:, None, None]
+            gain = np.where(j <= k, (1.0 - aa) * aa**power, 0.0)
+            cache[n] = np.concatenate([aa ** (k[None] + 1), gain], axis=2)
+        return cache[n]
 
     def reach(self, z0: np.ndarray, max_change: np.ndarray) -> np.ndarray:
         """Per DoF, a bound [m, rad] on the distance travelled while the command is brought

@@ -260,6 +260,8 @@ class Hierarchical(Strategy):
         idx = {e.name: i for i, e in enumerate(problem.entries)}
         self.rows = [[idx[e.name] for e in st.entries] for st in self.solvers]
         self.reg_rows = [idx[e.name] for e in reg]
+        for st in self.solvers[1:]:  # the levels' variable bounds: computed once a step
+            st.tr.share_variable_bounds(self.solvers[0].tr)
 
     def _bounds(
         self, i: int, p: np.ndarray, optima: list[np.ndarray], level_w: list[np.ndarray]

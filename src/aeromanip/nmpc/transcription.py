@@ -211,6 +211,9 @@ class Transcription:
         self._max_change = np.full(self.nx, np.inf) if limits is None else limits * problem.dt
         #: the last ``variable_bounds``: (z0's bytes, (lbw, ubw), whether a plan was needed)
         self._bounds_memo: tuple[bytes, tuple[np.ndarray, np.ndarray], bool] | None = None
+        #: a transcription with the same variables and bounds whose ``variable_bounds``
+        #: this one returns (``share_variable_bounds``: a hierarchy's levels)
+        self._bounds_source: Transcription | None = None
 
     # -- building the NLP ---------------------------------------------------------------
     def _build(self, n_groups: int) -> None:
@@ -368,21 +371,23 @@ class Transcription:
         rates, command-rate bounds), would otherwise make every plan infeasible. The box
         is kept wherever that plan keeps it; the widening ends where it is back inside.
         Near a bound, the plan may first brake into the margin as far as the vehicle
-        would coast (``Bounds.return_bounds``, ``bounds.margin_ramp``)."""
+        would coast (``Bounds.return_bounds``, ``bounds.margin_ramp``). The arrays are
+        read-only: the same ones come back until ``p``'s state changes."""
+        if self._bounds_source is not None:
+            return self._bounds_source.variable_bounds(p)
         z0 = np.asarray(p[: self.nz], dtype=float)
         key = z0.tobytes()
         if self._bounds_memo is not None and self._bounds_memo[0] == key:
-            lbw, ubw = self._bounds_memo[1]
-            return lbw.copy(), ubw.copy()
+            return self._bounds_memo[1]
         lbw, ubw = self.lbw.copy(), self.ubw.copy()
         lbw[: self.nz] = ubw[: self.nz] = z0
         b, x0 = self.problem.bounds, z0[: self.nx]
         soft = min(self.N, int(np.ceil(b.margin_ramp / self.problem.dt)))
         if soft > 0:  # where the vehicle would coast with its commands zeroed
-            coast = self.model.rollout(z0, np.zeros((soft, self.nx)))[:, : self.nx]
-            for k in range(1, soft + 1):
-                lo, hi = b.return_bounds(coast[k], k * self.problem.dt)
-                lbw[self.index_x[k]], ubw[self.index_x[k]] = lo, hi
+            coast = self.model.rollout(z0, np.zeros((soft, self.nx)))[1:, : self.nx]
+            ahead = self.problem.dt * np.arange(1, soft + 1)[:, None]
+            idx = self.index_x[1 : soft + 1]
+            lbw[idx], ubw[idx] = b.return_bounds(coast, ahead)
         reach = self.model.reach(z0, self._max_change)  # no plan needed where it is short
         near = bool(np.any(x0 - reach < b.x_lower) or np.any(x0 + reach > b.x_upper))
         if near:
@@ -392,11 +397,29 @@ class Transcription:
             idx = self.index_x[1:]
             lbw[idx] = np.minimum(lbw[idx], x_brake)
             ubw[idx] = np.maximum(ubw[idx], x_brake)
+        lbw.flags.writeable = ubw.flags.writeable = False  # kept for the step's other calls
         self._bounds_memo = (key, (lbw, ubw), near)
-        return lbw.copy(), ubw.copy()
+        return lbw, ubw
+
+    def share_variable_bounds(self, other: Transcription) -> bool:
+        """Return ``other``'s ``variable_bounds`` from now on (one computation per step for
+        a hierarchy's levels), if its variables, bounds and model are this one's; whether
+        they are."""
+        same = (
+            other.model is self.model
+            and other.problem.bounds is self.problem.bounds
+            and other.N == self.N
+            and np.array_equal(other.lbw, self.lbw)
+            and np.array_equal(other.ubw, self.ubw)
+            and np.array_equal(other.index_x, self.index_x)
+        )
+        self._bounds_source = other if same and other is not self else None
+        return same
 
     def box_widening(self, p: np.ndarray) -> np.ndarray:
         """Per DoF, how far [m, rad] ``variable_bounds(p)`` widens the state box (0: not)."""
+        if self._bounds_source is not None:
+            return self._bounds_source.box_widening(p)
         lbw, ubw = self.variable_bounds(p)
         if not self._bounds_memo[2]:
             return np.zeros(self.nx)

@@ -11,9 +11,11 @@ compiler, a failed build (one warning) or, for a part that runs the generated mo
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import logging
 import os
+import platform
 import shutil
 import subprocess
 import tempfile
@@ -69,12 +71,29 @@ def compiler(follows_codegen: bool = True) -> str | None:
 
 
 def entry_of(spec: CSources, cc: str) -> CacheEntry:
-    """The cache entry of ``spec`` built by ``cc``."""
+    """The cache entry of ``spec`` built by ``cc`` (and, for code built for this CPU
+    (``-march=native``), this CPU: a cache shared by other machines does not hand it
+    instructions they lack)."""
     h = hashlib.sha256()
     for name in (*spec.sources, *spec.headers):
         h.update((spec.directory / name).read_bytes())
     h.update(" ".join((ca.__version__, Path(cc).name, *spec.cflags, *spec.link)).encode())
+    if "-march=native" in spec.cflags:
+        h.update(cpu_identity().encode())
     return CacheEntry(cache_dir() / f"{spec.name}-{h.hexdigest()[:20]}.so")
+
+
+@functools.cache
+def cpu_identity() -> str:
+    """This CPU's model and instruction-set flags (Linux's ``/proc/cpuinfo``; elsewhere
+    what ``platform`` says)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return " ".join((platform.machine(), platform.processor()))
+    keys = ("model name", "flags", "Features", "CPU part")  # x86, then ARM's names
+    lines = (line for line in text.splitlines() if line.split(":")[0].strip() in keys)
+    return "\n".join(dict.fromkeys(lines))  # once, not once per core
 
 
 def load(spec: CSources) -> ctypes.CDLL | None:

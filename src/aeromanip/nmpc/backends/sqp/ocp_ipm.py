@@ -29,7 +29,12 @@ SPEC = CSources(
     ("ocp_ipm.c", "riccati_pivots.c"),
     ("ocp_ipm.h",),
     purpose="the Riccati QP solver",
-    cflags=("-O3", "-fPIC", "-shared"),  # its inner loops vectorised: ~10 % faster than -O2
+    cflags=(
+        "-O3",
+        "-march=native",
+        "-fPIC",
+        "-shared",
+    ),  # its inner loops vectorised: ~10 % faster than -O2
     follows_codegen=False,
 )
 #: ``ocp_ipm_solve``'s status codes (``ocp_ipm.h``)

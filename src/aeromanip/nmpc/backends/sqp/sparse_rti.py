@@ -30,7 +30,7 @@ SPEC = CSources(
     ("sparse_rti.c", "ocp_ipm.c", "model_fn.c"),
     ("ocp_ipm.h", "model_fn.h"),
     purpose="the compiled real-time iteration",
-    cflags=("-O3", "-fPIC", "-shared"),
+    cflags=("-O3", "-march=native", "-fPIC", "-shared"),  # as ocp_ipm.SPEC
 )
 SOLVED = 0  # ocp_ipm.h's OCP_IPM_SOLVED
 
