@@ -509,3 +509,19 @@ def test_the_recovery_plan_is_the_nearest_to_zero_command_that_keeps_the_box(x, 
     plan = model.recovery(z0, 12, cut, box, limits)
     np.testing.assert_allclose(plan, brute_force_recovery(model, z0, 12, cut, box, limits),
                                atol=1e-6)  # fmt: skip
+
+
+@pytest.mark.parametrize("steps", [0, 1, 8, 9, 50])
+def test_a_rollout_is_the_matrix_recursion_loop_or_filter(steps):
+    """``rollout`` (a loop up to ``SHORT_ROLLOUT`` steps, a per-DoF filter beyond) against
+    ``z[k+1] = A z[k] + B u[k]`` step by step with ``matrices``' A, B; a DoF that follows
+    at once and lagged ones alike."""
+    model = RateModel(7, 0.1, TAU)
+    rng = np.random.default_rng(steps)
+    z = model.initial(X0, rng.normal(size=7), rng.normal(size=7))
+    U = rng.normal(size=(steps, 7))
+    A, B = model.matrices(0.1)
+    want = [z]
+    for u in U:
+        want.append(A @ want[-1] + B @ u)
+    np.testing.assert_allclose(model.rollout(z, U), np.array(want), rtol=0, atol=1e-12)
