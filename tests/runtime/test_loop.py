@@ -63,7 +63,9 @@ def test_the_first_plan_flies_from_mission_time_zero():
     flight = RealtimeFlight(sc, vehicle, vehicle)
     calls = []
     step = flight.ctrl.step
-    flight.ctrl.step = lambda x, t, r=None: calls.append((t, flight.clock.t0)) or step(x, t, r)
+    flight.ctrl.step = lambda x, t, r=None, **kw: (
+        calls.append((t, flight.clock.t0)) or step(x, t, r, **kw)
+    )
     rows = []
     stats = flight.fly(rows.append)
 
@@ -121,3 +123,44 @@ def test_a_refused_write_stops_the_flight_holding_and_keeps_the_rows(tmp_path, m
     assert len(log) == 1 == result.summary["steps"]  # the row written; the cut one dropped
     assert "ENOSPC" in result.summary["stopped_by"]
     assert json.loads((result.out_dir / "summary.json").read_text())["steps"] == 1
+
+
+class TiltedSensingVehicle(StillVehicle):
+    """The still vehicle rolled and pitched a little, its arm carrying a wrist sensor."""
+
+    ROLL, PITCH, WRENCH = 0.02, -0.03, (-1.5, 0.1, 0.2, 0.0, 0.01, 0.0)
+
+    def state(self) -> VehicleState:
+        x, y, z, yaw = self.x0[:4]
+        return VehicleState(
+            time.monotonic(), (x, y, z), (0.0, 0.0, 0.0), self.ROLL, self.PITCH, yaw, 0.0
+        )
+
+    def wrench(self):
+        return self.WRENCH
+
+
+def test_the_controller_receives_the_attitude_and_the_wrist_wrench_with_the_state():
+    """What the contact tasks need on a vehicle: every step gets the platform's roll and
+    pitch from the autopilot's state and the arm interface's wrench reading, as the
+    physics simulator hands them; an arm without a sensor gives ``None``."""
+    sc = next(iter(load_scenarios("flight", ["duration=1.0"]).values()))
+    for vehicle, wrench in (
+        (TiltedSensingVehicle(np.array(sc.x0)), TiltedSensingVehicle.WRENCH),
+        (StillVehicle(np.array(sc.x0)), None),
+    ):
+        flight = RealtimeFlight(sc, vehicle, vehicle)
+        seen = []
+
+        def recorded(x, t, r=None, step=flight.ctrl.step, seen=seen, **kw):
+            seen.append(kw)
+            return step(x, t, r, **kw)
+
+        flight.ctrl.step = recorded
+        assert flight.fly(lambda row: None).steps == 2 and len(seen) == 2
+        for kw in seen:
+            if wrench is None:
+                assert kw["wrench"] is None and kw["attitude"] == (0.0, 0.0)
+            else:
+                np.testing.assert_array_equal(kw["wrench"], wrench)
+                assert kw["attitude"] == (vehicle.ROLL, vehicle.PITCH)

@@ -197,7 +197,7 @@ class RealtimeFlight:
         rates = m.rates if self.ctrl.problem.model.has_response else None
         c0 = time.perf_counter()
         with deferred():
-            cmd = self.ctrl.step(x, t, rates)
+            cmd = self.ctrl.step(x, t, rates, wrench=m.wrench, attitude=m.attitude)
         return cmd, x, time.perf_counter() - c0
 
     def _first_step(self, sink: Callable[[Row], None]) -> None:

@@ -3,8 +3,10 @@
 ``StateReader.read`` assembles ``x = [active platform DoFs, q]`` from the transport's
 latest ``VehicleState`` and the arm's joints (yaw unwrapped continuously, as the NMPC's
 yaw is), with the measured rates: the platform's velocity and yaw rate (joint rates are
-not measured: 0). ``Measurement.predicted(now)`` moves it forward by its age along those
-rates: the state at the time it is used, not when it was measured.
+not measured: 0); and, for the contact tasks, the platform's roll and pitch and the arm
+interface's wrist wrench, if it has a sensor. ``Measurement.predicted(now)`` moves it
+forward by its age along those rates: the state at the time it is used, not when it was
+measured.
 """
 
 from __future__ import annotations
@@ -22,11 +24,15 @@ from aeromanip.runtime.transport import ArmInterface, Transport
 
 @dataclass(frozen=True)
 class Measurement:
-    """An NMPC state ``x``, its rates ``dx/dt`` and when it was measured [s, monotonic]."""
+    """An NMPC state ``x``, its rates ``dx/dt`` and when it was measured [s, monotonic];
+    the platform's ``(roll, pitch)`` [rad] and the wrist sensor's ``[f, tau]`` [N, N m,
+    world] with it (``None``: not measured), for the tasks that use them."""
 
     x: np.ndarray
     rates: np.ndarray
     stamp: float
+    attitude: tuple[float, float] | None = None
+    wrench: np.ndarray | None = None
 
     def age(self, now: float) -> float:
         """How old it is at ``now`` [s]."""
@@ -65,7 +71,10 @@ class StateReader:
         q, _ = joints
         x = np.array([pose[d] for d in self.dofs] + list(q))
         r = np.array([rate[d] for d in self.dofs] + [0.0] * len(q))
-        return Measurement(x, r, st.stamp)
+        wrench = self.arm.wrench()
+        return Measurement(
+            x, r, st.stamp, (st.roll, st.pitch), None if wrench is None else np.array(wrench)
+        )
 
 
 class MissionClock:

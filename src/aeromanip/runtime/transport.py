@@ -123,3 +123,9 @@ class ArmInterface(ABC):
     def joints(self) -> tuple[tuple[float, ...], float] | None:
         """The latest measured joint positions [rad] and when they arrived [s, monotonic];
         ``None`` before the first."""
+
+    def wrench(self) -> tuple[float, ...] | None:
+        """The wrist force/torque sensor's latest reading ``[f, tau]`` [N, N m] in the
+        world frame (ENU), for the contact tasks (``Controller.step``'s ``wrench``);
+        ``None``: no sensor (the default)."""
+        return None
