@@ -76,7 +76,7 @@ def riccati_library() -> ctypes.CDLL | None:
 
 class CompiledPivots:
     """``convexify.riccati_pivots`` in C (``riccati_pivots.c``, the same steps), for
-    ``reduced_convexified``'s ``pivots``: about 20x faster at N = 20 (NumPy's calls on
+    ``reduced_convexified``'s ``pivots``: about 10x faster at N = 20 (NumPy's calls on
     7 x 7 matrices cost more than their arithmetic)."""
 
     def __init__(self, lib: ctypes.CDLL, floor_share: float) -> None:
