@@ -430,7 +430,7 @@ def test_the_sparse_models_exact_step_falls_back_on_gauss_newton(exact_step, ok,
     (``lin.data["v"] - v``). The two QPs are stand-ins returning the given steps."""
     model = object.__new__(SparseQpModel)
     model.tr = SimpleNamespace(model=SimpleNamespace(A=np.eye(2), B=np.zeros((2, 0))))
-    model._active, model._pivots = (lambda lin, lam_c, lam_v: None), None
+    model._active, model._pivots = (lambda lin, lam_c, lam_v: (None, None, 0.0)), None
     gn_step = np.array([-0.05, 0.01])
     # positive definite stand-in blocks, told apart by their scale: 1 exact, 2 Gauss-Newton
     model._hessian_blocks = lambda lin, lam, p, exact: (
@@ -473,7 +473,7 @@ def test_the_exact_hessian_reaches_the_qp_convexified_on_the_dynamics_null_space
     A, B = np.eye(2), np.array([[1.0], [0.5]])
     model.tr = SimpleNamespace(model=SimpleNamespace(A=A, B=B))
     model.ns, model.nz = 3, 2
-    model._active, model._pivots = (lambda lin, lam_c, lam_v: None), None
+    model._active, model._pivots = (lambda lin, lam_c, lam_v: (None, None, 0.0)), None
     blocks = {"stage": np.diag([-1e-3, 0.5, 2.0])[None], "terminal": np.eye(2)}
     model._hessian_blocks = lambda lin, lam, p, exact: (blocks["stage"], blocks["terminal"])
     seen = []

@@ -94,7 +94,7 @@ def reduced_convexified(
     stage_blocks: np.ndarray,
     terminal_block: np.ndarray,
     dynamics: tuple[np.ndarray, np.ndarray],
-    active: tuple[np.ndarray, np.ndarray, float] | None = None,
+    active: Callable[[], tuple[np.ndarray, np.ndarray, float]] | None = None,
     pivots: Callable[..., np.ndarray | None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-stage Hessian blocks made convex on the dynamics' null space, sparsity kept.
@@ -104,8 +104,8 @@ def reduced_convexified(
     positive definite exactly when every pivot of the Riccati recursion is (the Hessian
     in ``u_k`` once the later stages are minimised out, ``R_k + B' P_{k+1} B``): then
     the blocks come back as they are, indefinite or not. Else, as ``convexified`` does
-    for a dense Hessian, ``active`` (``active_normals``) is added with the smallest
-    ``rho`` in a few decades that makes every pivot definite, which keeps the step on
+    for a dense Hessian, ``active()`` (``active_normals``; called only then) is added with
+    the smallest ``rho`` in a few decades that makes every pivot definite, which keeps the step on
     that active set; failing that, each indefinite pivot's eigenvalues are reflected
     (``|lambda|``, floored) by a change of ``R_k`` alone (Verschueren et al. 2017,
     "Sparsity preserving convexification"; acados' ``PROJECT_REDUC_HESS`` projects
@@ -115,8 +115,8 @@ def reduced_convexified(
     AB = np.hstack(dynamics)
     if pivots(stage_blocks, terminal_block, AB, reflect=False) is not None:
         return stage_blocks, terminal_block
-    if active is not None and active[2] > 0.0:
-        CtC, CtC_T, mean_norm = active
+    CtC, CtC_T, mean_norm = active() if active is not None else (None, None, 0.0)
+    if mean_norm > 0.0:
         scale = max(float(np.abs(np.diagonal(stage_blocks, axis1=1, axis2=2)).max()), 1e-8)
         for rho in scale / mean_norm * 10.0 ** np.arange(CONVEXIFY_DECADES):
             Hs, HT = stage_blocks + rho * CtC, terminal_block + rho * CtC_T

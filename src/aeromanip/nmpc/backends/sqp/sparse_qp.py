@@ -16,6 +16,7 @@ descend, the step is taken with the Gauss-Newton Hessian instead.
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 from typing import Any
 
 import casadi as ca
@@ -424,8 +425,9 @@ class SparseQpModel:
         Hs, HT = self._hessian_blocks(lin, lam_c, p, exact)
         if exact:  # convex on the dynamics' null space (convexify.reduced_convexified)
             dynamics = (self.tr.model.A, self.tr.model.B)
-            active = self._active(lin, lam_c, lam_v)
-            Hs, HT = reduced_convexified(Hs, HT, dynamics, active, self._pivots)
+            Hs, HT = reduced_convexified(
+                Hs, HT, dynamics, partial(self._active, lin, lam_c, lam_v), self._pivots
+            )  # the active rows' normals are computed only where the pivots need them
             if not isinstance(qp, RiccatiQp):  # HPIPM's square-root Riccati recursion
                 Hs, HT = convexified_blocks(Hs, HT)  # factors each block: PSD ones only
         if damping:
