@@ -59,6 +59,7 @@ class RateModel:
         self.has_response = bool(self.lagged.size)
         self.nz = 2 * nx + self.lagged.size
         self.A, self.B = self.matrices(self.dt)
+        self._filters: dict[int, np.ndarray] = {}  # _lag_filter's, by rollout length
 
     def matrices(self, h: float) -> tuple[np.ndarray, np.ndarray]:
         """``A`` (nz, nz) and ``B`` (nz, nx) of holding a command for ``h`` [s]."""
@@ -117,21 +118,22 @@ class RateModel:
         Z[1:, nx : 2 * nx] = U  # v[k] = u[k-1]
         if self.has_response:  # per lagged DoF r[k+1] = a r[k] + (1 - a) u[k]: a filter
             lag = self.lagged
-            a, c = _response_terms(self.tau[lag], self.dt)
+            c = _response_terms(self.tau[lag], self.dt)[1]
             inputs = np.concatenate([z0[None, 2 * nx :], U[:, lag]]).T[:, :, None]
-            R = (self._lag_filter(len(U), a) @ inputs)[:, :, 0].T  # (n, lagged): r[1..n]
+            R = (self._lag_filter(len(U)) @ inputs)[:, :, 0].T  # (n, lagged): r[1..n]
             Z[1:, 2 * nx :] = R
             before = np.concatenate([z0[None, 2 * nx :], R[:-1]])  # r[0..n-1]
             step[:, lag] += c * (before - U[:, lag])
         Z[1:, :nx] = z0[:nx] + np.cumsum(step, axis=0)
         return Z
 
-    def _lag_filter(self, n: int, a: np.ndarray) -> np.ndarray:
+    def _lag_filter(self, n: int) -> np.ndarray:
         """Per lagged DoF the map (n, 1 + n) from ``[r[0], u[0..n-1]]`` to ``r[1..n]``
         (``a^(k+1)`` on ``r[0]``, ``(1 - a) a^(k-j)`` on ``u[j]``, ``j <= k``), shape
-        (lagged, n, 1 + n); built once per length."""
-        cache = self.__dict__.setdefault("_filters", {})
+        (lagged, n, 1 + n), ``a = exp(-dt / tau)``; built once per length."""
+        cache = self._filters
         if n not in cache:
+            a = _response_terms(self.tau[self.lagged], self.dt)[0]
             k = np.arange(n)[:, None]
             j = np.arange(n)[None, :]
             power = np.where(j <= k, k - j, 0)[None]  # (1, n, n)
