@@ -36,6 +36,8 @@ ALLOWED: dict[str, set[str]] = {
     "runtime": BASE | {"references", "robot", "tasks", "nmpc", "sim", "experiment"},
     # MAVLink: the runtime's transport and the SITL autopilot; only the command line imports it
     "mavlink": BASE | {"references", "robot", "tasks", "nmpc", "sim", "experiment", "runtime"},
+    # a controller as a C library: only the command line imports it
+    "export": BASE | {"references", "robot", "tasks", "nmpc", "experiment"},
     "robots": set(),  # built-in TOML files
     "scenarios": set(),
 }

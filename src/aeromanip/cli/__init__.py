@@ -15,7 +15,7 @@ import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
-from aeromanip.cli import bench, fly, identify, listing, plot, replay, sitl, sweep
+from aeromanip.cli import bench, export, fly, identify, listing, plot, replay, sitl, sweep
 from aeromanip.cli import run as run_command
 from aeromanip.errors import AeromanipError, ConfigError, ExitCode, describe_os_error
 from aeromanip.interrupts import RunInterrupted, interrupted, stop_on_signals
@@ -49,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="aeromanip", description="NMPC for aerial manipulators (Lunni et al., ICUAS 2017)"
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    for command in (run_command, plot, replay, listing, bench, identify, sweep, fly, sitl):
+    for command in (run_command, plot, replay, listing, bench, identify, sweep, fly, sitl, export):
         command.add_parser(sub)
     return parser
 

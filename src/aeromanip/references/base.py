@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import casadi as ca
 import numpy as np
 
 from aeromanip.config import Table, to_floats
@@ -39,6 +40,15 @@ class Reference(ABC):
     def position(self, t: float) -> np.ndarray:
         """The reference position [m] at time ``t`` [s], shape (3,)."""
         return self.sample(np.array([float(t)]))[0]
+
+    def expression(self, t: ca.SX) -> ca.SX:
+        """The position [m] at the time ``t`` [s] (a scalar expression) as a CasADi
+        expression (3,): what a controller exported to C computes (``aeromanip export``).
+        A kind without one cannot be exported."""
+        raise ConfigError(
+            f"reference: a {type(self).__name__} reference cannot be exported to C "
+            "(kinds that can: constant, sinusoids, waypoints, csv, lissajous)"
+        )
 
     @abstractmethod
     def sample(self, times: np.ndarray | Sequence[float]) -> np.ndarray:

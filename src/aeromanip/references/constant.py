@@ -6,6 +6,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 
 from aeromanip.config import Table
@@ -34,6 +35,10 @@ class Constant(Reference):
     def sample(self, times: np.ndarray | Sequence[float]) -> np.ndarray:
         """Reference positions [m] at ``times`` [s], shape (len(times), 3)."""
         return np.tile(self.point, (as_times(times).size, 1))
+
+    def expression(self, t: ca.SX) -> ca.SX:
+        """``sample`` at one time ``t`` [s] as a CasADi expression (3,)."""
+        return ca.SX(ca.DM(self.point))
 
     @classmethod
     def from_table(cls, table: Table, base_dir: Path | None = None) -> Constant:

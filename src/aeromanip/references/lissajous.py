@@ -6,6 +6,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 
 from aeromanip.config import Table
@@ -52,6 +53,11 @@ class Lissajous(Reference):
         t = np.maximum(as_times(times), 0.0)
         arg = 2 * np.pi * t[:, None] * self.frequency + self.phase
         return self.center + self.amplitude * np.sin(arg)
+
+    def expression(self, t: ca.SX) -> ca.SX:
+        """``sample`` at one time ``t`` [s] as a CasADi expression (3,)."""
+        arg = 2 * np.pi * ca.fmax(t, 0.0) * ca.DM(self.frequency) + ca.DM(self.phase)
+        return ca.DM(self.center) + ca.DM(self.amplitude) * ca.sin(arg)
 
     @classmethod
     def from_table(cls, table: Table, base_dir: Path | None = None) -> Lissajous:

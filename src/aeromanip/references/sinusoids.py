@@ -6,6 +6,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 
 from aeromanip.config import Table, to_floats
@@ -90,6 +91,16 @@ class SinusoidPhases(Reference):
         ph = np.array(self.phases)
         s = self._offsets[i] + ph[i, 1] * np.sin(2 * np.pi * ph[i, 2] * (t - self._starts[i]))
         return self.center + s[:, None] * self.direction
+
+    def expression(self, t: ca.SX) -> ca.SX:
+        """``sample`` at one time ``t`` [s] as a CasADi expression (3,)."""
+        t = ca.fmin(ca.fmax(t, 0.0), self.duration)
+        s = ca.SX(0.0)
+        for i, (_, amp, freq) in enumerate(self.phases):
+            start = self._starts[i]
+            here = self._offsets[i] + amp * ca.sin(2 * np.pi * freq * (t - start))
+            s = here if i == 0 else ca.if_else(t >= start, here, s)
+        return ca.DM(self.center) + s * ca.DM(self.direction)
 
     @classmethod
     def from_table(cls, table: Table, base_dir: Path | None = None) -> SinusoidPhases:

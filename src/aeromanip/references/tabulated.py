@@ -7,6 +7,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 
 from aeromanip.config import Table
@@ -71,6 +72,18 @@ class Csv(Reference):
         """Reference positions [m] at ``times`` [s], shape (len(times), 3)."""
         t = as_times(times)
         return np.stack([np.interp(t, self.t, self.xyz[:, j]) for j in range(3)], axis=1)
+
+    def expression(self, t: ca.SX) -> ca.SX:
+        """``sample`` at one time ``t`` [s] as a CasADi expression (3,): CasADi's linear
+        interpolant, held outside the table."""
+        if self.t.size == 1:
+            return ca.SX(ca.DM(self.xyz[0]))
+        held = ca.fmin(ca.fmax(t, self.t[0]), self.t[-1])
+        cols = [
+            ca.interpolant(f"reference_{'xyz'[j]}", "linear", [self.t], self.xyz[:, j])(held)
+            for j in range(3)
+        ]
+        return ca.vertcat(*cols)
 
     @classmethod
     def from_table(cls, table: Table, base_dir: Path | None = None) -> Csv:

@@ -6,6 +6,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 
 from aeromanip.config import Table
@@ -77,6 +78,16 @@ class Waypoints(Reference):
         tau = np.clip((t - kt[i]) / (kt[i + 1] - kt[i]), 0.0, 1.0)
         s = _min_jerk(tau)
         return kp[i] + s[:, None] * (kp[i + 1] - kp[i])
+
+    def expression(self, t: ca.SX) -> ca.SX:
+        """``sample`` at one time ``t`` [s] as a CasADi expression (3,): the first knot
+        plus every segment's share of its step (all of it before ``t``, none after)."""
+        kt, kp = self._knot_t, self._knot_p
+        p = ca.SX(ca.DM(kp[0]))
+        for i in range(kt.size - 1):
+            tau = ca.fmin(ca.fmax((t - kt[i]) / (kt[i + 1] - kt[i]), 0.0), 1.0)
+            p += tau**3 * (10.0 + tau * (-15.0 + 6.0 * tau)) * ca.DM(kp[i + 1] - kp[i])
+        return p
 
     @classmethod
     def from_table(cls, table: Table, base_dir: Path | None = None) -> Waypoints:

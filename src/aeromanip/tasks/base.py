@@ -20,6 +20,7 @@ import casadi as ca
 import numpy as np
 
 from aeromanip.config import Table
+from aeromanip.errors import ConfigError
 from aeromanip.references import Reference
 from aeromanip.registry import Registry
 from aeromanip.robot.kinematics import Kinematics
@@ -87,6 +88,17 @@ class Task(ABC):
     def param_values(self, times: np.ndarray) -> np.ndarray:
         """Stage parameters at absolute ``times`` [s]: array (len(times), param_size)."""
         return np.zeros((len(times), self.param_size))
+
+    def param_expression(self, t: ca.SX) -> ca.SX:
+        """``param_values`` at one time ``t`` [s] as a CasADi expression (param_size,):
+        what a controller exported to C computes (``aeromanip export``). A task whose
+        parameters come from elsewhere (measurements) has none and cannot be exported."""
+        if type(self).param_values is Task.param_values:
+            return ca.SX.zeros(self.param_size)
+        raise ConfigError(
+            f"tasks.{self.name}: its parameters are not a function of time alone; "
+            "a controller with it cannot be exported to C"
+        )
 
     # Measurements: a task may use what is measured each control step beside the state
     # (the wrist force/torque sensor); by default it uses none.

@@ -59,6 +59,10 @@ class EndEffectorTracking(Task):
         """The reference position at each time [m]."""
         return np.asarray(self.reference.sample(np.asarray(times, dtype=float)), dtype=float)
 
+    def param_expression(self, t: ca.SX) -> ca.SX:
+        """``param_values`` at one time ``t`` [s] as a CasADi expression (3,)."""
+        return self.reference.expression(t)
+
     @classmethod
     def from_table(cls, table: Table, reference: Reference) -> EndEffectorTracking:
         """Option: ``tracked`` (e.g. ``"yz"``); the reference is the scenario's."""

@@ -79,6 +79,22 @@ def daqp_settings(qpsol_options: Mapping[str, Any]) -> np.ndarray | None:
     return np.array([float(given.get(k, np.nan)) for k in DAQP_SETTINGS])
 
 
+def loop_settings(
+    model: Any, opts: Mapping[str, Any], loop_constants: Mapping[str, float]
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The loop's DAQP settings (``DAQP_SETTINGS``) and constants (``CONSTANTS``) for
+    ``model`` with the SQP's ``opts`` and ``loop_constants``, or ``None`` where the loop
+    does not apply (another model or QP solver, DAQP options it cannot pass)."""
+    if not isinstance(model, CondensedQpModel) or model.qp.solver != "daqp":
+        return None
+    daqp = daqp_settings(opts["qpsol_options"])
+    if daqp is None:
+        return None
+    given = {**loop_constants, "screen_rounds": SCREEN_ROUNDS, "cross_tol": CROSS_TOL,
+             "convexify_decades": CONVEXIFY_DECADES, "eigen_floor": EIGEN_FLOOR}  # fmt: skip
+    return daqp, np.array([float(given[k]) for k in CONSTANTS])
+
+
 def _spec(source_dir: Path) -> CSources:
     link = (str(casadi_dir() / "libdaqpstat.a"),)
     return CSources("aeromanip_condensed_loop", source_dir, SOURCES, HEADERS, link,
@@ -121,6 +137,7 @@ class CompiledLoop:
                  daqp: np.ndarray, constants: np.ndarray) -> None:  # fmt: skip
         self.lib, self._symbols = lib, symbols  # the model libraries stay loaded
         self.model = model
+        self.daqp, self.constants = daqp, constants  # as given to the loop
         qp = model.qp
         dims = np.array([model.nU, model.nc, model.nr, model.nh, model.tr.p.numel()], np.intc)
         sizes = np.array(qp._sizes, dtype=np.intc)
@@ -143,10 +160,8 @@ class CompiledLoop:
         """The compiled loop of ``model``, or ``None`` where it does not apply (another
         model or QP solver, DAQP options it cannot pass, the model not compiled).
         ``loop_constants``: the SQP loop's own constants (``CONSTANTS`` names them)."""
-        if not isinstance(model, CondensedQpModel) or model.qp.solver != "daqp":
-            return None
-        daqp = daqp_settings(opts["qpsol_options"])
-        if daqp is None or not opts["codegen"]:
+        settings = loop_settings(model, opts, loop_constants)
+        if settings is None or not opts["codegen"]:
             return None
         symbols = []
         for f in model.sources[:2] + (model.sources[4:5] or [None]):
@@ -159,10 +174,7 @@ class CompiledLoop:
             so = ctypes.CDLL(str(path))
             symbols += [getattr(so, f.name()), getattr(so, f.name() + "_work")]
         lib = loop_library()
-        given = {**loop_constants, "screen_rounds": SCREEN_ROUNDS, "cross_tol": CROSS_TOL,
-                 "convexify_decades": CONVEXIFY_DECADES, "eigen_floor": EIGEN_FLOOR}  # fmt: skip
-        constants = np.array([float(given[k]) for k in CONSTANTS])
-        return None if lib is None else cls(lib, model, symbols, daqp, constants)
+        return None if lib is None else cls(lib, model, symbols, *settings)
 
     def __del__(self) -> None:
         handle = getattr(self, "_handle", None)

@@ -65,4 +65,14 @@ QpOutcome qp_solve(Sqp* s, const double* H, const double* g, const double* A,
 int hessian(Sqp* s, const double* U, const double* p, const double* lam_c,
             const double* lam_u, int exact, double regularization, double damping);
 
+/* the loop's entry points (condensed_loop.c) */
+Sqp* sqp_new(const int* dims, const int* hier_row, const unsigned char* always,
+             const int* sizes, int n_sizes, double screen, const double* daqp,
+             const double* consts, casadi_fn data, casadi_work_fn data_work, casadi_fn merit_fn,
+             casadi_work_fn merit_work, casadi_fn hess, casadi_work_fn hess_work);
+int sqp_solve(Sqp* s, const double* opts, const double* p, const double* lbc,
+              const double* ubc, const double* lbU, const double* ubU, double* U,
+              double* lam_c, double* lam_u, double* memory, SqpInfo* info);
+void sqp_free(Sqp* s);
+
 #endif

@@ -1,0 +1,194 @@
+"""The exported C controller (``aeromanip export``) against the Python controller: the
+same commands, statuses and iterations on the same recorded states, through solves,
+cold retries, fallbacks and stops; bad input refused; the example flies the scenario.
+
+The exports are built with ``-O0``: the tests are about answers, and the generated model
+compiles in seconds so (timings are ``aeromanip bench``'s and the example's). The Python
+controller runs its NumPy loop with CasADi's DAQP (codegen off): a second
+implementation of everything the C step does.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import re
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aeromanip.cli import main
+from aeromanip.errors import StateError
+from aeromanip.experiment.closed_loop import make_controller
+from aeromanip.experiment.scenario import load_scenarios
+
+BUILD_TIMEOUT_S = 300
+EXPORTS = {
+    "flight": ("flight", ["controller.strategy=weighted", "controller.solver_options.seed=none"]),
+    # four SQP iterations: where the reference jumps ahead, solves fail, are retried
+    # cold, fall back on the last plan and stop once it has flown out
+    "flight, 4 iterations": ("flight", ["controller.strategy=weighted",
+                                        "controller.solver_options.seed=none",
+                                        "controller.solver_options.max_iter=4"]),
+    "planar RTI": ("planar", ["controller.backend=sqp-rti", "controller.horizon=10",
+                              "controller.solver_options.seed=none"]),
+}  # fmt: skip
+VARIANTS = {"planar": "cond-default"}
+
+
+def _export(name: str, root: Path) -> tuple[Path, object]:
+    scenario, sets = EXPORTS[name]
+    variant = VARIANTS.get(scenario)
+    out = root / re.sub(r"\W+", "-", name)
+    args = ["export", scenario, "--out", str(out)] + (["--variant", variant] if variant else [])
+    for s in sets:
+        args += ["--set", s]
+    assert main(args) == 0
+    make = ["make", "-C", str(out), "-j2", "CFLAGS=-O0", "all", "shared"]
+    subprocess.run(make, check=True, capture_output=True, timeout=BUILD_TIMEOUT_S)
+    sc = next(iter(load_scenarios(scenario, sets, variant).values()))
+    return out, sc
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    root = tmp_path_factory.mktemp("exports")
+    return {name: _export(name, root) for name in EXPORTS}
+
+
+class Exported:
+    """The exported library through ctypes."""
+
+    def __init__(self, directory: Path, nx: int, N: int) -> None:
+        class Output(ctypes.Structure):
+            _fields_ = [
+                ("u", ctypes.c_double * nx),
+                ("plan_x", ctypes.c_double * ((N + 1) * nx)),
+                ("plan_u", ctypes.c_double * (N * nx)),
+                ("status", ctypes.c_int),
+                ("solver_status", ctypes.c_int),
+                ("iterations", ctypes.c_int),
+                ("cost", ctypes.c_double),
+            ]
+
+        self.lib = ctypes.CDLL(str(directory / "libaeromanip_controller.so"))
+        self.lib.aeromanip_init.restype = ctypes.c_void_p
+        self.lib.aeromanip_step.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double,
+                                            ctypes.POINTER(Output)]  # fmt: skip
+        self.lib.aeromanip_free.argtypes = [ctypes.c_void_p]
+        self.handle = self.lib.aeromanip_init()
+        assert self.handle
+        self.out = Output()
+
+    def step(self, x: np.ndarray, t: float) -> int:
+        x = np.ascontiguousarray(x, dtype=float)
+        return self.lib.aeromanip_step(self.handle, x.ctypes.data, t, ctypes.byref(self.out))
+
+    def close(self) -> None:
+        self.lib.aeromanip_free(self.handle)
+
+
+STATUS = {0: "ok", 1: "fallback", 2: "stopped"}
+
+
+def _lockstep(directory: Path, sc, steps: int, noise: float, jump_s: float = 0.0) -> dict:
+    """Fly the Python controller on its kinematic model (the state disturbed by
+    ``noise`` [m, rad] per step, the clock jumping ``jump_s`` ahead every 10 steps) and
+    hand each state to the C controller too; the statuses seen."""
+    ctrl = make_controller(sc)
+    c = Exported(directory, ctrl.nx, sc.problem.horizon)
+    rng = np.random.default_rng(11)
+    x, dt, seen = sc.x0.copy(), sc.problem.dt, {}
+    try:
+        for k in range(steps):
+            t = k * dt + jump_s * (k // 10)
+            cmd = ctrl.step(x, t)
+            status = c.step(x, t)
+            assert STATUS[status] == cmd.status, f"step {k}"
+            assert c.out.iterations == cmd.iterations, f"step {k}"
+            np.testing.assert_allclose(np.array(c.out.u), cmd.u, rtol=0, atol=1e-8)
+            np.testing.assert_allclose(
+                np.array(c.out.plan_x).reshape(-1, ctrl.nx), cmd.plan_x, rtol=0, atol=1e-8
+            )
+            seen[cmd.status] = seen.get(cmd.status, 0) + 1
+            x = x + dt * cmd.u + rng.normal(0.0, noise, x.size)
+    finally:
+        c.close()
+    return seen
+
+
+def test_the_weighted_sqp_gives_the_python_controllers_commands(built):
+    directory, sc = built["flight"]
+    seen = _lockstep(directory, sc, 60, 0.003)
+    assert seen == {"ok": 60}
+
+
+def test_cold_retries_fallbacks_and_stops_are_the_python_controllers(built):
+    directory, sc = built["flight, 4 iterations"]
+    seen = _lockstep(directory, sc, 60, 0.003, jump_s=25.0)
+    assert seen["ok"] > 20 and seen["fallback"] > 3 and seen["stopped"] > 3  # every path
+
+
+def test_the_real_time_iteration_gives_the_python_controllers_commands(built):
+    directory, sc = built["planar RTI"]
+    assert _lockstep(directory, sc, 80, 0.002) == {"ok": 80}
+
+
+def test_a_state_that_is_not_finite_is_refused_and_changes_nothing(built):
+    directory, sc = built["flight"]
+    ctrl, nx = make_controller(sc), sc.problem.kin.nx
+    c = Exported(directory, nx, sc.problem.horizon)
+    try:
+        x = sc.x0.copy()
+        for k, bad in enumerate([None, np.nan, None, np.inf, None]):
+            if bad is not None:
+                x_bad = x.copy()
+                x_bad[2] = bad
+                assert c.step(x_bad, k * 0.5) == 3  # AEROMANIP_BAD_INPUT
+                with pytest.raises(StateError):
+                    ctrl.step(x_bad, k * 0.5)
+                continue
+            cmd = ctrl.step(x, k * 0.5)
+            assert c.step(x, k * 0.5) == 0
+            np.testing.assert_allclose(np.array(c.out.u), cmd.u, rtol=0, atol=1e-8)
+            x = x + 0.5 * cmd.u
+    finally:
+        c.close()
+
+
+def test_the_example_flies_the_scenario_with_the_python_controllers_error(built):
+    directory, sc = built["flight"]
+    steps = 40
+    run = subprocess.run([str(directory / "example" / "example"), str(steps)],
+                         capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    lines = run.stdout.strip().splitlines()
+    assert len(lines) == steps + 2  # header, one per step, summary
+    rmse_mm = float(re.search(r"EE RMSE ([0-9.]+) mm", lines[-1]).group(1))
+    ctrl, x, sq = make_controller(sc), sc.x0.copy(), 0.0
+    for k in range(steps):
+        t = k * sc.problem.dt
+        sq += np.sum((sc.problem.ee_of(x) - sc.reference.position(t)) ** 2)
+        x = x + sc.problem.dt * ctrl.step(x, t).u
+    assert rmse_mm == pytest.approx(1e3 * np.sqrt(sq / steps), abs=2e-6)
+    assert "failed 0" in lines[-1]
+
+
+@pytest.mark.parametrize(
+    "args, key",
+    [
+        (["flight"], "controller.strategy: 'hierarchical'"),
+        (["contact-wall", "--variant", "cog"], "controller.backend: 'ipopt'"),
+        (["contact-wall", "--variant", "cog", "--set", "controller.backend=sqp"], "tasks.force"),
+        (["flight", "--set", "controller.strategy=weighted", "--set", "controller.horizon=20"],
+         "controller.solver_options"),
+    ],
+)  # fmt: skip
+def test_what_cannot_be_exported_is_refused_in_one_line_before_writing(args, key, tmp_path,
+                                                                       capsys):  # fmt: skip
+    out = tmp_path / "export"
+    assert main(["export", *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and key in err
+    assert not out.exists()
