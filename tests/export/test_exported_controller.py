@@ -192,3 +192,46 @@ def test_what_cannot_be_exported_is_refused_in_one_line_before_writing(args, key
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and key in err
     assert not out.exists()
+
+
+COUNTING_HARNESS = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include "aeromanip_controller.h"
+void* __real_malloc(size_t n);
+void* __real_calloc(size_t n, size_t k);
+void* __real_realloc(void* p, size_t n);
+static long counted = 0;
+void* __wrap_malloc(size_t n) { ++counted; return __real_malloc(n); }
+void* __wrap_calloc(size_t n, size_t k) { ++counted; return __real_calloc(n, k); }
+void* __wrap_realloc(void* p, size_t n) { ++counted; return __real_realloc(p, n); }
+int main(int argc, char** argv) {
+  double x[AEROMANIP_NX];
+  for (int i = 0; i < AEROMANIP_NX && i + 1 < argc; ++i) x[i] = atof(argv[i + 1]);
+  aeromanip_controller* c = aeromanip_init();
+  long in_init = counted, solved = 0;
+  aeromanip_output out;
+  for (int k = 0; k < 40; ++k) {
+    solved += aeromanip_step(c, x, k * AEROMANIP_DT, &out) == AEROMANIP_OK;
+    for (int i = 0; i < AEROMANIP_NX; ++i) x[i] += AEROMANIP_DT * out.u[i];
+  }
+  printf("%ld %ld %ld\n", in_init, counted - in_init, solved);
+  aeromanip_free(c);
+  return 0;
+}
+"""
+
+
+def test_a_step_allocates_no_memory(built, tmp_path):
+    directory, sc = built["flight"]
+    src, exe = tmp_path / "count.c", tmp_path / "count"
+    src.write_text(COUNTING_HARNESS)
+    wrap = "-Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc"
+    subprocess.run(["cc", "-O0", f"-I{directory / 'include'}", str(src),
+                    str(directory / "libaeromanip_controller.a"), "-lm", wrap, "-o", str(exe)],
+                   check=True, capture_output=True, timeout=60)  # fmt: skip
+    run = subprocess.run([str(exe), *map(repr, sc.x0)], capture_output=True, text=True,
+                         check=True, timeout=60)  # fmt: skip
+    in_init, in_steps, solved = map(int, run.stdout.split())
+    assert in_init > 10  # the counter sees the library's allocations
+    assert solved == 40 and in_steps == 0

@@ -223,8 +223,12 @@ void sqp_free(Sqp* s) {
                      &s->qd, &s->qlam_a, &s->qlam_x, &s->lba, &s->uba, &s->lbx, &s->ubx,
                      &s->Ad, &s->soc_c, &s->sd, &s->slam_a, &s->slam_x, &s->dH, &s->dA,
                      &s->dlo, &s->dup, &s->dlam, &s->rlam, &s->tmp, &s->L, &s->C, &s->V,
-                     &s->Hc};
+                     &s->Hc, &s->w_scaling, &s->w_M, &s->w_dupper, &s->w_dlower,
+                     &s->w_Rinv, &s->w_v};
   for (size_t i = 0; i < sizeof bufs / sizeof bufs[0]; ++i) free(*bufs[i]);
+  s->work.settings = 0; /* s's own: not DAQP's to free */
+  free_daqp_workspace(&s->work);
+  free(s->w_sense);
   free(s->sense);
   free(s->rows);
   free(s->range);
@@ -260,7 +264,9 @@ Sqp* sqp_new(const int* dims, const int* hier_row, const unsigned char* always,
       {&s->Ad, nm}, {&s->soc_c, nc}, {&s->sd, n}, {&s->slam_a, nc}, {&s->slam_x, n},
       {&s->dH, n * n}, {&s->dA, big}, {&s->dlo, n + nc}, {&s->dup, n + nc},
       {&s->dlam, n + nc}, {&s->rlam, nc}, {&s->tmp, nm}, {&s->L, n * n},
-      {&s->C, wide * n}, {&s->V, n * n}, {&s->Hc, n * n}};
+      {&s->C, wide * n}, {&s->V, n * n}, {&s->Hc, n * n}, {&s->w_scaling, n + nc},
+      {&s->w_M, n * nc}, {&s->w_dupper, n + nc}, {&s->w_dlower, n + nc},
+      {&s->w_Rinv, n * (n + 1) / 2}, {&s->w_v, n}};
   for (size_t i = 0; i < sizeof plan / sizeof plan[0]; ++i) {
     *plan[i].p = calloc(plan[i].size + 1, sizeof(double));
     ok = ok && *plan[i].p;
@@ -271,7 +277,11 @@ Sqp* sqp_new(const int* dims, const int* hier_row, const unsigned char* always,
   s->near = calloc(nc + 1, 1);
   s->hier_row = calloc(nh + 1, sizeof(int));
   s->always = calloc(nc + 1, 1);
+  s->w_sense = calloc(n + nc + 1, sizeof(int));
+  allocate_daqp_workspace(&s->work, (int)n, 0);
   ok = ok && s->sense && s->rows && s->range && s->near && s->hier_row && s->always;
+  ok = ok && s->w_sense && s->work.lam && s->work.lam_star && s->work.WS && s->work.D &&
+       s->work.xldl && s->work.zldl && s->work.L && s->work.u && s->work.xold;
   if (!ok) {
     sqp_free(s);
     return 0;
@@ -282,6 +292,7 @@ Sqp* sqp_new(const int* dims, const int* hier_row, const unsigned char* always,
   s->n_sizes = n_sizes;
   s->screen = screen;
   daqp_default_settings(&s->settings); /* then those given (NaN: DAQP's default) */
+  s->work.settings = &s->settings;
   if (!isnan(daqp[0])) s->settings.primal_tol = daqp[0];
   if (!isnan(daqp[1])) s->settings.dual_tol = daqp[1];
   if (!isnan(daqp[2])) s->settings.zero_tol = daqp[2];

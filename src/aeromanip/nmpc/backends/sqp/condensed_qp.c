@@ -6,10 +6,35 @@
 #include <math.h>
 #include <string.h>
 
+#include "daqp/auxiliary.h"
+#include "daqp/daqp.h"
+#include "daqp/utils.h"
 #include "sqp_loop.h"
 
 /* -- the dense QP on the rows that may bind (dense_qp.py) --------------------------- */
 
+
+/* DAQP's setup_daqp (its api.c) in the workspace allocated once by sqp_new: the same
+   LDP, nothing allocated */
+static int setup_rows(Sqp* s, DAQPProblem* qp) {
+  DAQPWorkspace* w = &s->work;
+  w->n = qp->n;
+  w->m = qp->m;
+  w->ms = qp->ms;
+  w->qp = qp;
+  w->scaling = s->w_scaling;
+  w->M = s->w_M;
+  w->dupper = s->w_dupper;
+  w->dlower = s->w_dlower;
+  w->sense = s->w_sense;
+  w->Rinv = s->w_Rinv; /* update_Rinv moves it to RinvD where H is diagonal */
+  w->RinvD = 0;
+  w->v = s->w_v;
+  for (int i = 0; i < qp->ms; ++i) w->scaling[i] = 1;
+  reset_daqp_workspace(w);
+  int flag = update_ldp(UPDATE_M + UPDATE_d + UPDATE_sense + UPDATE_Rinv + UPDATE_v, w);
+  return flag < 0 ? flag : activate_constraints(w);
+}
 
 /* the QP with the rows `rows` (r of them) only: DAQP as CasADi's interface calls it */
 static QpOutcome solve_rows(Sqp* s, const double* H, const double* g, const double* A,
@@ -32,24 +57,18 @@ static QpOutcome solve_rows(Sqp* s, const double* H, const double* g, const doub
     s->sense[n + i] = lba[rows[i]] == uba[rows[i]] ? 5 : 0;
   }
   DAQPProblem qp = {n, m, n, s->dH, (c_float*)g, s->dA, s->dup, s->dlo, s->sense};
-  DAQPWorkspace work;
   DAQPResult res;
-  memset(&work, 0, sizeof work);
   memset(&res, 0, sizeof res);
-  work.settings = &s->settings;
   res.x = d;
   res.lam = s->dlam;
-  int flag = setup_daqp(&qp, &work, &res.setup_time);
+  int flag = setup_rows(s, &qp);
   if (flag < 0) {
     for (int j = 0; j < n; ++j) d[j] = NAN;
     out.exitflag = flag;
   } else {
-    daqp_solve(&res, &work);
+    daqp_solve(&res, &s->work);
     out.exitflag = res.exitflag;
   }
-  work.settings = 0;
-  free_daqp_workspace(&work);
-  free_daqp_ldp(&work);
   memcpy(lam_x, s->dlam, sizeof(double) * n);
   memcpy(lam_r, s->dlam + n, sizeof(double) * r);
   /* a finite, feasible solution means success (as the Python path decides) */

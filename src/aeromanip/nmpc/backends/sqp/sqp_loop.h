@@ -42,6 +42,10 @@ typedef struct {
   double *dH, *dA, *dlo, *dup, *dlam, *rlam, *tmp, *L, *C, *V, *Hc;
   int *sense, *rows, *range;
   unsigned char* near;
+  /* DAQP's workspace and its LDP's buffers, allocated once for nU variables and nc rows */
+  DAQPWorkspace work;
+  double *w_scaling, *w_M, *w_dupper, *w_dlower, *w_Rinv, *w_v;
+  int* w_sense;
 } Sqp;
 
 typedef struct {
