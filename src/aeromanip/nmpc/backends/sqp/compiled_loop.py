@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from aeromanip.nmpc.backends.c_library import CSources, casadi_dir, entry_of, load
+from aeromanip.nmpc.backends.c_library import NATIVE_CFLAGS, CSources, casadi_dir, entry_of, load
 from aeromanip.nmpc.backends.cache import CacheEntry
 from aeromanip.nmpc.backends.codegen import library_of
 from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
@@ -98,7 +98,7 @@ def loop_settings(
 def _spec(source_dir: Path) -> CSources:
     link = (str(casadi_dir() / "libdaqpstat.a"),)
     return CSources("aeromanip_condensed_loop", source_dir, SOURCES, HEADERS, link,
-                    "the compiled SQP loop")  # fmt: skip
+                    "the compiled SQP loop", NATIVE_CFLAGS)  # fmt: skip
 
 
 def loop_library(source_dir: Path = HERE) -> ctypes.CDLL | None:

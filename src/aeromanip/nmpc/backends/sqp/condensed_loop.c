@@ -224,14 +224,13 @@ void sqp_free(Sqp* s) {
                      &s->Ad, &s->soc_c, &s->sd, &s->slam_a, &s->slam_x, &s->dH, &s->dA,
                      &s->dlo, &s->dup, &s->dlam, &s->rlam, &s->tmp, &s->L, &s->C, &s->V,
                      &s->Hc, &s->w_scaling, &s->w_M, &s->w_dupper, &s->w_dlower,
-                     &s->w_Rinv, &s->w_v};
+                     &s->w_Rinv, &s->w_v, &s->w_R, &s->T};
   for (size_t i = 0; i < sizeof bufs / sizeof bufs[0]; ++i) free(*bufs[i]);
   s->work.settings = 0; /* s's own: not DAQP's to free */
   free_daqp_workspace(&s->work);
   free(s->w_sense);
   free(s->sense);
   free(s->rows);
-  free(s->range);
   free(s->near);
   free(s->hier_row);
   free(s->always);
@@ -266,20 +265,20 @@ Sqp* sqp_new(const int* dims, const int* hier_row, const unsigned char* always,
       {&s->dlam, n + nc}, {&s->rlam, nc}, {&s->tmp, nm}, {&s->L, n * n},
       {&s->C, wide * n}, {&s->V, n * n}, {&s->Hc, n * n}, {&s->w_scaling, n + nc},
       {&s->w_M, n * nc}, {&s->w_dupper, n + nc}, {&s->w_dlower, n + nc},
-      {&s->w_Rinv, n * (n + 1) / 2}, {&s->w_v, n}};
+      {&s->w_Rinv, n * (n + 1) / 2}, {&s->w_v, n}, {&s->w_R, n * n},
+      {&s->T, (nr > wide ? nr : wide) * n}};
   for (size_t i = 0; i < sizeof plan / sizeof plan[0]; ++i) {
     *plan[i].p = calloc(plan[i].size + 1, sizeof(double));
     ok = ok && *plan[i].p;
   }
   s->sense = calloc(n + nc + 1, sizeof(int));
   s->rows = calloc(nc + 1, sizeof(int));
-  s->range = calloc(2 * n + 1, sizeof(int));
   s->near = calloc(nc + 1, 1);
   s->hier_row = calloc(nh + 1, sizeof(int));
   s->always = calloc(nc + 1, 1);
   s->w_sense = calloc(n + nc + 1, sizeof(int));
   allocate_daqp_workspace(&s->work, (int)n, 0);
-  ok = ok && s->sense && s->rows && s->range && s->near && s->hier_row && s->always;
+  ok = ok && s->sense && s->rows && s->near && s->hier_row && s->always;
   ok = ok && s->w_sense && s->work.lam && s->work.lam_star && s->work.WS && s->work.D &&
        s->work.xldl && s->work.zldl && s->work.L && s->work.u && s->work.xold;
   if (!ok) {

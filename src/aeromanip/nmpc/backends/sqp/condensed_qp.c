@@ -14,6 +14,37 @@
 /* -- the dense QP on the rows that may bind (dense_qp.py) --------------------------- */
 
 
+/* H has no off-diagonal entry beyond DAQP's 1e-12 (its update_Rinv's test) */
+static int diagonal(const double* H, int n) {
+  for (int i = 0; i < n; ++i)
+    for (int j = i + 1; j < n; ++j)
+      if (fabs(H[(size_t)i * n + j]) > 1e-12) return 0;
+  return 1;
+}
+
+/* the LDP's M = A Rinv (A: r x n, rows) and v = Rinv' f, Rinv packed by rows (DAQP's
+   update_M and update_v, which run along its packed columns) */
+static void ldp_products(const double* Rinv, const double* A, const double* f, int n, int r,
+                         double* M, double* v) {
+  size_t packed = (size_t)n * (n + 1) / 2;
+  for (int k = 0; k < r; ++k) {
+    double* mk = M + (size_t)k * n;
+    const double* ak = A + (size_t)k * n;
+    memset(mk, 0, sizeof(double) * (size_t)n);
+    for (int j = 0; j < n; ++j) {
+      double a = ak[j];
+      if (a == 0.0) continue;
+      const double* row_j = Rinv + packed - (size_t)(n - j) * (n - j + 1) / 2;
+      for (int i = 0; i < n - j; ++i) mk[j + i] += a * row_j[i];
+    }
+  }
+  memset(v, 0, sizeof(double) * (size_t)n);
+  for (int j = 0; j < n; ++j) {
+    const double* row_j = Rinv + packed - (size_t)(n - j) * (n - j + 1) / 2;
+    for (int i = 0; i < n - j; ++i) v[j + i] += f[j] * row_j[i];
+  }
+}
+
 /* DAQP's setup_daqp (its api.c) in the workspace allocated once by sqp_new: the same
    LDP, nothing allocated */
 static int setup_rows(Sqp* s, DAQPProblem* qp) {
@@ -32,7 +63,18 @@ static int setup_rows(Sqp* s, DAQPProblem* qp) {
   w->v = s->w_v;
   for (int i = 0; i < qp->ms; ++i) w->scaling[i] = 1;
   reset_daqp_workspace(w);
-  int flag = update_ldp(UPDATE_M + UPDATE_d + UPDATE_sense + UPDATE_Rinv + UPDATE_v, w);
+  if (diagonal(qp->H, qp->n)) { /* DAQP's own path: no factor */
+    int flag = update_ldp(UPDATE_Rinv + UPDATE_M + UPDATE_v + UPDATE_d + UPDATE_sense, w);
+    return flag < 0 ? flag : activate_constraints(w);
+  }
+  /* update_ldp's steps in its order, the products by rows (contiguous, vectorised) */
+  for (int i = 0; i < qp->m; ++i) w->sense[i] = qp->sense[i];
+  if (!la_cholesky_inverse_packed(qp->H, qp->n, w->settings->eps_prox, s->w_R, w->Rinv))
+    return EXIT_NONCONVEX;
+  ldp_products(w->Rinv, qp->A, qp->f, qp->n, qp->m - qp->ms, w->M, w->v);
+  normalize_M(w);
+  normalize_Rinv(w);
+  int flag = update_ldp(UPDATE_d, w);
   return flag < 0 ? flag : activate_constraints(w);
 }
 
@@ -177,7 +219,7 @@ static void convexify(Sqp* s, double* H, const double* lam_c, const double* lam_
     }
     norms = (norms + nfixed) / (double)(nC + nfixed);
     double base = scale / (norms > 1e-12 ? norms : 1e-12);
-    la_gram(s->C, nC, n, 1.0, s->V, 0, s->range); /* C'C, then the fixed variables' diagonal */
+    la_gram(s->C, nC, n, 1.0, s->V, 0, s->T); /* C'C, then the fixed variables' diagonal */
     for (int j = 0; j < n; ++j)
       if (lam_u[j] != 0.0) s->V[j + (size_t)j * n] += 1.0;
     for (int t = 0; t < s->k.convexify_decades; ++t) {
@@ -213,14 +255,14 @@ int hessian(Sqp* s, const double* U, const double* p, const double* lam_c,
     if (fn_call(&s->hess, U, p, lam_c, s->H, 0, 0, 0, 0)) return 1;
     convexify(s, s->H, lam_c, lam_u);
   } else {
-    la_gram(s->J, s->nr, n, 2.0, s->H, 0, s->range);
+    la_gram(s->J, s->nr, n, 2.0, s->H, 0, s->T);
     if (s->nh) {
       for (int j = 0; j < n; ++j)
         for (int i = 0; i < s->nh; ++i) {
           double l = lam_c[s->hier_row[i]];
           s->C[i + (size_t)j * s->nh] = s->Jh[i + (size_t)j * s->nh] * sqrt(l > 0 ? l : 0.0);
         }
-      la_gram(s->C, s->nh, n, 2.0, s->H, 1, s->range);
+      la_gram(s->C, s->nh, n, 2.0, s->H, 1, s->T);
     }
   }
   double top = -INFINITY;

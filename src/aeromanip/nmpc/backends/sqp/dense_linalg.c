@@ -21,33 +21,29 @@ double la_dot(const double* a, const double* b, int n) {
   return (s0 + s1) + (s2 + s3);
 }
 
-/* H = scale * M' M (M: m x n column-major; `range`: 2n ints of scratch): each column's
-   products only over the rows where both columns have nonzeros (a condensed Jacobian is
-   block-triangular: a stage's residuals do not depend on later commands) */
-void la_gram(const double* M, int m, int n, double scale, double* H, int add, int* range) {
-  for (int j = 0; j < n; ++j) {
-    const double* col = M + (size_t)j * m;
-    int lo = 0, hi = m;
-    while (lo < m && col[lo] == 0.0) ++lo;
-    while (hi > lo && col[hi - 1] == 0.0) --hi;
-    range[2 * j] = lo;
-    range[2 * j + 1] = hi;
-  }
-  for (int j = 0; j < n; ++j) {
-    for (int i = 0; i <= j; ++i) {
-      int lo = range[2 * i] > range[2 * j] ? range[2 * i] : range[2 * j];
-      int hi = range[2 * i + 1] < range[2 * j + 1] ? range[2 * i + 1] : range[2 * j + 1];
-      double v = hi > lo ? scale * la_dot(M + (size_t)i * m + lo, M + (size_t)j * m + lo, hi - lo)
-                         : 0.0;
-      if (add) {
-        H[i + (size_t)j * n] += v;
-        if (i != j) H[j + (size_t)i * n] += v;
-      } else {
-        H[i + (size_t)j * n] = v;
-        H[j + (size_t)i * n] = v;
-      }
+/* H = scale * M' M, or H += it (`add`) (M: m x n column-major; T: m x n scratch): the
+   sum of the rows' outer products, each over its span of nonzeros, along rows of M
+   (copied into T) so the inner loop is contiguous and vectorises (a condensed
+   Jacobian's rows depend on a few commands: a stage's residuals on none after it, a
+   rate's on two) */
+void la_gram(const double* M, int m, int n, double scale, double* H, int add, double* T) {
+  for (int i = 0; i < m; ++i)
+    for (int j = 0; j < n; ++j) T[(size_t)i * n + j] = M[i + (size_t)j * m];
+  if (!add) memset(H, 0, sizeof(double) * (size_t)n * n);
+  for (int r = 0; r < m; ++r) { /* the lower triangle, by columns of H */
+    const double* t = T + (size_t)r * n;
+    int lo = 0, hi = n;
+    while (lo < n && t[lo] == 0.0) ++lo;
+    while (hi > lo && t[hi - 1] == 0.0) --hi;
+    for (int i = lo; i < hi; ++i) {
+      double a = scale * t[i];
+      if (a == 0.0) continue;
+      double* column = H + (size_t)i * n;
+      for (int j = i; j < hi; ++j) column[j] += a * t[j];
     }
   }
+  for (int i = 0; i < n; ++i) /* the upper triangle mirrors the lower */
+    for (int j = i + 1; j < n; ++j) H[i + (size_t)j * n] = H[j + (size_t)i * n];
 }
 
 /* y = M x (M: m x n) */
@@ -64,6 +60,47 @@ void la_matvec(const double* M, int m, int n, const double* x, double* y) {
 /* y = M' x (M: m x n) */
 void la_matvec_t(const double* M, int m, int n, const double* x, double* y) {
   for (int j = 0; j < n; ++j) y[j] = la_dot(M + (size_t)j * m, x, m);
+}
+
+/* DAQP's Rinv (its utils.c, update_Rinv): the inverse of the upper triangular R with
+   H + eps I = R'R (H: n x n symmetric, one triangle read), its rows packed (row i holds
+   columns i..n-1). Both halves run along rows, so their inner loops are contiguous and
+   vectorise (DAQP's Cholesky runs down columns of its packed rows). R: n x n scratch.
+   0 where H + eps I is not positive definite. */
+int la_cholesky_inverse_packed(const double* H, int n, double eps, double* R, double* Rinv) {
+  for (int i = 0; i < n; ++i) {
+    memcpy(R + (size_t)i * n + i, H + (size_t)i * n + i, sizeof(double) * (size_t)(n - i));
+    R[(size_t)i * n + i] += eps;
+  }
+  for (int i = 0; i < n; ++i) { /* right-looking: row i, then the rows below it */
+    double* ri = R + (size_t)i * n;
+    if (!(ri[i] > 0.0)) return 0;
+    ri[i] = sqrt(ri[i]);
+    double inv = 1.0 / ri[i];
+    for (int j = i + 1; j < n; ++j) ri[j] *= inv;
+    for (int k = i + 1; k < n; ++k) {
+      double f = ri[k];
+      double* rk = R + (size_t)k * n;
+      for (int j = k; j < n; ++j) rk[j] -= f * ri[j];
+    }
+  }
+  /* row i of R^-1 = (e_i - sum_{k>i} R[i][k] (row k of R^-1)) / R[i][i], from the last */
+  size_t packed = (size_t)n * (n + 1) / 2;
+  for (int i = n - 1; i >= 0; --i) {
+    double* out = Rinv + packed - (size_t)(n - i) * (n - i + 1) / 2;
+    const double* ri = R + (size_t)i * n;
+    out[0] = 1.0;
+    for (int j = 1; j < n - i; ++j) out[j] = 0.0;
+    for (int k = i + 1; k < n; ++k) {
+      double f = ri[k];
+      const double* row_k = Rinv + packed - (size_t)(n - k) * (n - k + 1) / 2;
+      double* o = out + (k - i);
+      for (int j = 0; j < n - k; ++j) o[j] -= f * row_k[j];
+    }
+    double inv = 1.0 / ri[i];
+    for (int j = 0; j < n - i; ++j) out[j] *= inv;
+  }
+  return 1;
 }
 
 /* Cholesky of a symmetric matrix (lower triangle read): positive definite? */

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from aeromanip.nmpc.backends.c_library import CSources, load
+from aeromanip.nmpc.backends.c_library import NATIVE_CFLAGS, CSources, load
 from aeromanip.nmpc.backends.codegen import library_of
 from aeromanip.nmpc.backends.sqp.ocp_ipm import RiccatiQp
 from aeromanip.nmpc.backends.sqp.sparse_qp import SparseQpModel
@@ -30,7 +30,7 @@ SPEC = CSources(
     ("sparse_rti.c", "ocp_ipm.c", "model_fn.c"),
     ("ocp_ipm.h", "model_fn.h"),
     purpose="the compiled real-time iteration",
-    cflags=("-O3", "-march=native", "-fPIC", "-shared"),  # as ocp_ipm.SPEC
+    cflags=NATIVE_CFLAGS,
 )
 SOLVED = 0  # ocp_ipm.h's OCP_IPM_SOLVED
 

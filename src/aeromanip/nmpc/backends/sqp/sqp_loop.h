@@ -39,12 +39,12 @@ typedef struct {
   double *qd, *qlam_a, *qlam_x, *lba, *uba, *lbx, *ubx, *Ad, *soc_c;
   double *sd, *slam_a, *slam_x;  /* the corrected step */
   /* DAQP's inputs (A row-major) and scratch */
-  double *dH, *dA, *dlo, *dup, *dlam, *rlam, *tmp, *L, *C, *V, *Hc;
-  int *sense, *rows, *range;
+  double *dH, *dA, *dlo, *dup, *dlam, *rlam, *tmp, *L, *C, *V, *Hc, *T;
+  int *sense, *rows;
   unsigned char* near;
   /* DAQP's workspace and its LDP's buffers, allocated once for nU variables and nc rows */
   DAQPWorkspace work;
-  double *w_scaling, *w_M, *w_dupper, *w_dlower, *w_Rinv, *w_v;
+  double *w_scaling, *w_M, *w_dupper, *w_dlower, *w_Rinv, *w_v, *w_R;
   int* w_sense;
 } Sqp;
 
