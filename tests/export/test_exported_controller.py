@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import ctypes
 import re
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -235,3 +236,20 @@ def test_a_step_allocates_no_memory(built, tmp_path):
     in_init, in_steps, solved = map(int, run.stdout.split())
     assert in_init > 10  # the counter sees the library's allocations
     assert solved == 40 and in_steps == 0
+
+
+AARCH64_CC = "aarch64-linux-gnu-gcc"  # Debian's gcc-aarch64-linux-gnu (tools/install-cross)
+EM_AARCH64 = 183  # the ELF header's e_machine for aarch64
+
+
+@pytest.mark.skipif(shutil.which(AARCH64_CC) is None, reason=f"{AARCH64_CC} not installed")
+def test_the_export_cross_compiles_for_aarch64(built, tmp_path):
+    directory, _ = built["flight"]
+    cross = tmp_path / "cross"
+    shutil.copytree(directory, cross)
+    subprocess.run(["make", "-C", str(cross), "clean"], check=True, capture_output=True)
+    make = ["make", "-C", str(cross), "-j2", f"CC={AARCH64_CC}", "AR=aarch64-linux-gnu-ar",
+            "CFLAGS=-O0"]  # fmt: skip
+    subprocess.run(make, check=True, capture_output=True, timeout=BUILD_TIMEOUT_S)
+    header = (cross / "example" / "example").read_bytes()[:20]
+    assert header[:4] == b"\x7fELF" and int.from_bytes(header[18:20], "little") == EM_AARCH64
