@@ -30,7 +30,7 @@ from aeromanip.experiment.scenario import load_scenarios
 
 BASE = ["controller.strategy=weighted", "controller.solver_options.seed=none"]
 ROWS = {"weighted sqp": BASE, "weighted sqp-rti": [*BASE, "controller.backend=sqp-rti"]}
-CFLAGS = "-O2"
+CFLAGS = "-O3"  # the Makefile's default
 
 
 def build(sets: list[str], out: Path) -> None:
