@@ -2,7 +2,7 @@
 
 The 13-minute ``flight`` (1560 steps at 2 Hz, N = 10), weighted, on the kinematic model,
 for the SQP and the real-time iteration: per row, the C example's step median and worst
-case over the whole flight (built with ``-O2``, as the export's Makefile does), then the
+case over the whole flight (built with ``-O3``, as the export's Makefile does), then the
 Python controller's step on the same flight in this process (its compiled loop), the
 library's code size and static memory (``size``: text; data + bss) and the step's
 worst-case stack (GCC's call graph, ``-fcallgraph-info=su``: the deepest chain of frames
