@@ -253,3 +253,14 @@ def test_the_export_cross_compiles_for_aarch64(built, tmp_path):
     subprocess.run(make, check=True, capture_output=True, timeout=BUILD_TIMEOUT_S)
     header = (cross / "example" / "example").read_bytes()[:20]
     assert header[:4] == b"\x7fELF" and int.from_bytes(header[18:20], "little") == EM_AARCH64
+
+
+def test_export_build_makes_and_flies_the_example(tmp_path, capsys):
+    out = tmp_path / "planar"
+    args = ["export", "planar", "--variant", "cond-default", "--out", str(out), "--build"]
+    for s in EXPORTS["planar RTI"][1]:
+        args += ["--set", s]
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"example: steps 800, failed 0, solve median [0-9.]+ us", printed)
+    assert (out / "libaeromanip_controller.a").is_file()
