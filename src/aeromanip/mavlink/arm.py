@@ -12,6 +12,11 @@ joint target ``q`` [rad] is sent as ``2 (q - lower) / (upper - lower) - 1``, in
 Feedback: ``NAMED_VALUE_FLOAT`` named ``q1``.. ``qn`` [rad] (the SITL autopilot sends them
 with its state; on a vehicle, whatever reads the joint encoders). Without feedback the
 arm reports the targets it sent (open loop): say so with ``feedback=False``.
+
+The wrist force/torque sensor, where there is one: ``NAMED_VALUE_FLOAT`` named
+``wrist_fx``, ``wrist_fy``, ``wrist_fz`` [N] and ``wrist_tx``, ``wrist_ty``, ``wrist_tz``
+[N m], world frame (ENU, as the controller takes it: ``Controller.step``'s ``wrench``);
+the SITL autopilot sends them beside the joints when its scenario has a surface.
 """
 
 from __future__ import annotations
@@ -60,6 +65,10 @@ def check_arm(spec: RobotSpec) -> None:
         )
 
 
+#: the ``NAMED_VALUE_FLOAT`` names of the wrist sensor's reading, in ``[f, tau]`` order
+WRENCH_NAMES = ("wrist_fx", "wrist_fy", "wrist_fz", "wrist_tx", "wrist_ty", "wrist_tz")
+
+
 def joint_name(i: int) -> str:
     """The ``NAMED_VALUE_FLOAT`` name of joint ``i`` (0-based): ``q1``, ``q2``..."""
     return f"q{i + 1}"
@@ -82,16 +91,21 @@ class MavlinkActuatorArm(ArmInterface):
         self.names = {joint_name(i): i for i in range(spec.n_joints)}
         self.feedback = feedback
         self._q: list[float | None] = [None] * spec.n_joints
+        self._wrench: list[float | None] = [None] * len(WRENCH_NAMES)
         self._stamp = 0.0
         self._lock = threading.Lock()
         transport.add_handler("NAMED_VALUE_FLOAT", self._on_value)
 
     def _on_value(self, msg: Any) -> None:
-        i = self.names.get(str(msg.name).rstrip("\x00"))
+        name = str(msg.name).rstrip("\x00")
+        i = self.names.get(name)
         if i is not None and self.feedback:
             with self._lock:
                 self._q[i] = float(msg.value)
                 self._stamp = time.monotonic()
+        elif name in WRENCH_NAMES:
+            with self._lock:
+                self._wrench[WRENCH_NAMES.index(name)] = float(msg.value)
 
     def send(self, q: Sequence[float]) -> None:
         """Stream joint targets [rad] (one ``DO_SET_ACTUATOR`` per six joints)."""
@@ -107,3 +121,11 @@ class MavlinkActuatorArm(ArmInterface):
             if any(v is None for v in self._q):
                 return None
             return tuple(float(v) for v in self._q), self._stamp  # type: ignore[arg-type]
+
+    def wrench(self) -> tuple[float, ...] | None:
+        """The wrist sensor's latest reading ``[f, tau]`` [N, N m, world ENU], once every
+        component has arrived; ``None`` before (or without a sensor)."""
+        with self._lock:
+            if any(v is None for v in self._wrench):
+                return None
+            return tuple(float(v) for v in self._wrench)  # type: ignore[arg-type]

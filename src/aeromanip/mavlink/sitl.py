@@ -254,6 +254,7 @@ class SitlAutopilot:
             zip(spec.platform.dofs, x[: spec.n_platform].tolist(), strict=True)
         )
         extras = self.sim.extras()
+        wrench = self.sim.measured_wrench()
         return Measurement(
             t=self.t,
             position=frames.enu_to_ned((pose["x"], pose["y"], pose["z"])),
@@ -261,6 +262,7 @@ class SitlAutopilot:
             attitude=frames.attitude_enu_to_ned(extras["roll"], extras["pitch"], pose["yaw"]),
             rates=frames.flu_to_frd(self._omega.tolist()),
             joints=tuple(x[spec.n_platform :].tolist()),
+            wrench=None if wrench is None else tuple(float(v) for v in wrench),
         )
 
     def _status(self) -> Status:

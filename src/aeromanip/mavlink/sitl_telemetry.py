@@ -19,8 +19,9 @@ Each stream has a period in SITL ticks (``DEFAULT_HZ``; the state messages at th
   over 100 m).
 - ``SYSTEM_TIME``: wall clock [us] and SITL time [ms]; ``AUTOPILOT_VERSION`` on request.
 - ``LOCAL_POSITION_NED``, ``ATTITUDE`` and the joints (``NAMED_VALUE_FLOAT``) from the
-  measured state (the physics' measurement noise); ``ODOMETRY`` (the same, stamped with
-  the SITL time) when asked for, as on PX4's ground-station link.
+  measured state (the physics' measurement noise), with a surface the wrist sensor's
+  reading beside the joints (``arm.WRENCH_NAMES``, with its noise); ``ODOMETRY`` (the
+  same, stamped with the SITL time) when asked for, as on PX4's ground-station link.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from aeromanip.mavlink.arm import joint_name
+from aeromanip.mavlink.arm import WRENCH_NAMES, joint_name
 from aeromanip.mavlink.protocol import (
     MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
     MAV_MODE_FLAG_SAFETY_ARMED,
@@ -81,6 +82,7 @@ class Measurement:
     attitude: Vec3  # roll, pitch, yaw [rad]
     rates: Vec3  # body rates [rad/s]
     joints: tuple[float, ...]  # [rad]
+    wrench: tuple[float, ...] | None = None  # the wrist sensor's [f, tau] [N, N m], ENU
 
 
 @dataclass(frozen=True)
@@ -224,6 +226,8 @@ class Telemetry:
         ms = _ms(meas.t)
         for i, value in enumerate(meas.joints):
             self.conn.mav.named_value_float_send(ms, joint_name(i).encode(), value)
+        for name, value in zip(WRENCH_NAMES, meas.wrench or (), strict=False):
+            self.conn.mav.named_value_float_send(ms, name.encode(), value)
 
     def _odometry(self, meas: Measurement, status: Status) -> None:
         """PX4's ``streams/ODOMETRY.hpp`` L60-130: stamped with the measurement's time,
