@@ -89,11 +89,11 @@ def state_bounds(tr: Transcription, z0: ca.SX) -> tuple[list[ca.SX], list[ca.SX]
     b, model = tr.problem.bounds, tr.model
     lows, highs = _coast_bounds(tr, z0)
     x0 = z0[: tr.nx]
-    reach = _reach(model, z0, tr._max_change)
+    reach = _reach(model, z0, tr.max_change)
     out_low = ca.sum1(x0 - reach < ca.DM(b.x_lower))
     out_high = ca.sum1(x0 + reach > ca.DM(b.x_upper))
     near = out_low + out_high > 0
-    brake = _recovery(model, z0, tr.N, tr._max_change, tr)
+    brake = _recovery(model, z0, tr.N, tr.max_change, tr)
     lows = [ca.if_else(near, ca.fmin(lo, xb), lo) for lo, xb in zip(lows, brake, strict=True)]
     highs = [ca.if_else(near, ca.fmax(hi, xb), hi) for hi, xb in zip(highs, brake, strict=True)]
     return lows, highs

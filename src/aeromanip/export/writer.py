@@ -63,9 +63,10 @@ def check_scenario(sc: Scenario) -> None:
         )
     if sc.time_budget_s is not None:
         raise ConfigError("controller.time_budget: not exported (bound the step by max_iter)")
-    measured = [t.name for t in sc.problem._overriding("observe")]
-    if measured:
-        raise ConfigError(f"tasks.{measured[0]}: uses measurements; cannot be exported to C")
+    for method in ("observe", "force_feedforward"):  # what the C step does not compute
+        users = [t.name for t in sc.problem.overriding(method)]
+        if users:
+            raise ConfigError(f"tasks.{users[0]}: uses measurements; cannot be exported to C")
     t = ca.SX.sym("t")
     for e in sc.problem.entries:
         e.task.param_expression(t)

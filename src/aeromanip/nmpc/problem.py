@@ -190,7 +190,7 @@ class Problem:
     ) -> None:
         """Hand this step's measured state, wrist wrench and (if measured) the platform's
         ``(roll, pitch)`` [rad] to every task (``Task.observe``)."""
-        users = self._overriding("observe")
+        users = self.overriding("observe")
         if not users:  # nothing to compute (the step's time is the solver's)
             return
         ee = self.ee_of(x)
@@ -198,7 +198,7 @@ class Problem:
         for task in users:
             task.observe(ee, wrench, t, tilted)
 
-    def _overriding(self, method: str) -> list[Task]:
+    def overriding(self, method: str) -> list[Task]:
         """The tasks that override ``Task.<method>`` (the others do nothing there)."""
         return [
             e.task
@@ -231,7 +231,7 @@ class Problem:
     def force_feedforward(self, x_now: np.ndarray, x_next: np.ndarray) -> np.ndarray | None:
         """The thrust feed-forward of every task [N, world] (sum), given the plan's first
         two states; ``None`` when no task asks for one."""
-        users = self._overriding("force_feedforward")
+        users = self.overriding("force_feedforward")
         if not users:
             return None
         ee_now, ee_next = self.ee_of(x_now), self.ee_of(x_next)

@@ -208,7 +208,7 @@ class Transcription:
         self._layout()
         limits = problem.bounds.accel_limits
         #: per DoF, the most the command may change in one step (``inf``: unbounded)
-        self._max_change = np.full(self.nx, np.inf) if limits is None else limits * problem.dt
+        self.max_change = np.full(self.nx, np.inf) if limits is None else limits * problem.dt
         #: the last ``variable_bounds``: (z0's bytes, (lbw, ubw), whether a plan was needed)
         self._bounds_memo: tuple[bytes, tuple[np.ndarray, np.ndarray], bool] | None = None
         #: a transcription with the same variables and bounds whose ``variable_bounds``
@@ -388,11 +388,11 @@ class Transcription:
             ahead = self.problem.dt * np.arange(1, soft + 1)[:, None]
             idx = self.index_x[1 : soft + 1]
             lbw[idx], ubw[idx] = b.return_bounds(coast, ahead)
-        reach = self.model.reach(z0, self._max_change)  # no plan needed where it is short
+        reach = self.model.reach(z0, self.max_change)  # no plan needed where it is short
         near = bool(np.any(x0 - reach < b.x_lower) or np.any(x0 + reach > b.x_upper))
         if near:
             x_brake = self.model.recovery(
-                z0, self.N, self._max_change, (b.x_lower, b.x_upper), (b.u_lower, b.u_upper)
+                z0, self.N, self.max_change, (b.x_lower, b.x_upper), (b.u_lower, b.u_upper)
             )
             idx = self.index_x[1:]
             lbw[idx] = np.minimum(lbw[idx], x_brake)
