@@ -110,6 +110,7 @@ def _c_array(ctype: str, name: str, values: np.ndarray) -> str:
 
 
 def _c_double(v: float) -> str:
+    """A float as C source text (``NAN``, ``INFINITY`` from ``math.h``)."""
     if math.isnan(v):
         return "NAN"
     if math.isinf(v):
