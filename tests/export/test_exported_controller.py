@@ -28,10 +28,11 @@ BUILD_TIMEOUT_S = 300
 EXPORTS = {
     "flight": ("flight", ["controller.strategy=weighted", "controller.solver_options.seed=none"]),
     # four SQP iterations: where the reference jumps ahead, solves fail, are retried
-    # cold, fall back on the last plan and stop once it has flown out
+    # cold, fall back on the last plan and stop once it has flown out; with latency
     "flight, 4 iterations": ("flight", ["controller.strategy=weighted",
                                         "controller.solver_options.seed=none",
-                                        "controller.solver_options.max_iter=4"]),
+                                        "controller.solver_options.max_iter=4",
+                                        "controller.latency=0.1"]),
     "planar RTI": ("planar", ["controller.backend=sqp-rti", "controller.horizon=10",
                               "controller.solver_options.seed=none"]),
 }  # fmt: skip

@@ -113,9 +113,9 @@ static int succeeded(int status, const double* U) {
   return ok && finite_all(U, AM_NU);
 }
 
-/* on failure: the last plan's next command (clipped to the bounds), or stop */
-static aeromanip_status fall_back(aeromanip_controller* c, const double* x,
-                                  aeromanip_output* out) {
+/* on failure: the last plan's next command (clipped to the bounds), or stop (the plan:
+   rest at the start, the state the model predicts when the command lands) */
+static aeromanip_status fall_back(aeromanip_controller* c, aeromanip_output* out) {
   if (c->has_plan && c->plan_age + 1 < AM_N) {
     c->plan_age += 1;
     for (int i = 0; i < AM_NX; ++i)
@@ -127,7 +127,7 @@ static aeromanip_status fall_back(aeromanip_controller* c, const double* x,
   c->has_plan = 0;
   memset(out->u, 0, sizeof out->u);
   memset(out->plan_u, 0, sizeof out->plan_u);
-  for (int k = 0; k <= AM_N; ++k) memcpy(out->plan_x + k * AM_NX, x, sizeof(double) * AM_NX);
+  for (int k = 0; k <= AM_N; ++k) memcpy(out->plan_x + k * AM_NX, c->p, sizeof(double) * AM_NX);
   return AEROMANIP_STOPPED;
 }
 
@@ -160,7 +160,7 @@ aeromanip_status aeromanip_step(aeromanip_controller* c, const double* x, double
     memcpy(out->plan_u, c->plan_u, sizeof c->plan_u);
     out->status = AEROMANIP_OK;
   } else {
-    out->status = fall_back(c, x, out);
+    out->status = fall_back(c, out);
   }
   memcpy(c->u_prev, out->u, sizeof c->u_prev);
   return (aeromanip_status)out->status;
