@@ -185,6 +185,8 @@ def test_the_example_flies_the_scenario_with_the_python_controllers_error(built)
         (["contact-wall", "--variant", "cog", "--set", "controller.backend=sqp"], "tasks.force"),
         (["flight", "--set", "controller.strategy=weighted", "--set", "controller.horizon=20"],
          "controller.solver_options"),
+        (["waypoints-rates", "--variant", "10hz", "--set", "controller.strategy=weighted",
+          "--set", "controller.backend=sqp"], "controller.response"),
     ],
 )  # fmt: skip
 def test_what_cannot_be_exported_is_refused_in_one_line_before_writing(args, key, tmp_path,

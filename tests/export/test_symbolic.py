@@ -12,18 +12,20 @@ from aeromanip.experiment.scenario import load_scenarios
 from aeromanip.export.symbolic import ee_function, plan_function, prepare_function
 
 # short horizons (the condensed model), with and without rate lags and latency
-CASES = {
-    "flight": ("flight", ["controller.strategy=weighted"]),
-    "flight, latency": ("flight", ["controller.strategy=weighted", "controller.latency=0.2"]),
+CASES = {  # scenario, overrides, variant
+    "flight": ("flight", ["controller.strategy=weighted"], None),
+    "flight, latency": ("flight", ["controller.strategy=weighted", "controller.latency=0.2"], None),
+    # rate lags, command-rate bounds and a margin ramp
     "waypoints-rates": ("waypoints-rates", ["controller.strategy=weighted", "controller.horizon=10",
                                             "controller.backend=sqp",
-                                            "controller.solver_options.qpsol=daqp"]),
+                                            "controller.solver_options.qpsol=daqp"], "10hz"),
 }  # fmt: skip
 
 
 def _controller(case):
-    name, sets = CASES[case]
-    sc = next(iter(load_scenarios(name, sets).values()))
+    name, sets, variant = CASES[case]
+    sc = next(iter(load_scenarios(name, sets, variant).values()))
+    assert variant is None or sc.problem.model.has_response
     return sc, make_controller(sc)
 
 

@@ -49,6 +49,9 @@ def run(args: argparse.Namespace) -> int:
     req = ExportRequest(make_controller(sc), sc.name, _command(args), sc.x0, sc.duration)
     files = export_controller(req, out)
     print(f"{sc.name}: wrote {len(files)} files to {out}")
+    if sc.solver_options.get("seed", "ipopt") != "none":
+        print("note: the exported step has no IPOPT seed: a cold start is the SQP's from rest "
+              "(the Python controller's with controller.solver_options.seed = 'none')")  # fmt: skip
     if not args.build:
         print(f"build and fly it: make -C {shlex.quote(str(out))} run")
         return 0

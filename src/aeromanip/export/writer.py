@@ -61,6 +61,11 @@ def check_scenario(sc: Scenario) -> None:
         raise ConfigError(
             f"controller.backend: {sc.backend!r} cannot be exported to C; 'sqp' and 'sqp-rti' can"
         )
+    if sc.problem.model.has_response:
+        raise ConfigError(
+            "controller.response: rate lags need the measured rates, which the exported "
+            "step does not take yet; export without [controller.response]"
+        )
     if sc.time_budget_s is not None:
         raise ConfigError("controller.time_budget: not exported (bound the step by max_iter)")
     for method in ("observe", "force_feedforward"):  # what the C step does not compute
