@@ -35,6 +35,12 @@ EXPORTS = {
                                         "controller.latency=0.1"]),
     "planar RTI": ("planar", ["controller.backend=sqp-rti", "controller.horizon=10",
                               "controller.solver_options.seed=none"]),
+    "hierarchical flight": ("flight", ["controller.solver_options.seed=none"]),
+    # four SQP iterations and four DAQP iterations per QP: the second level's QPs fail
+    # where the first level's do not (partial steps), besides retries, fallbacks, stops
+    "hierarchical flight, 4 iterations": ("flight", [
+        "controller.solver_options.seed=none", "controller.solver_options.max_iter=4",
+        "controller.solver_options.qpsol_options.daqp.iter_limit=4", "controller.latency=0.1"]),
 }  # fmt: skip
 VARIANTS = {"planar": "cond-default"}
 
@@ -71,6 +77,7 @@ class Exported:
                 ("status", ctypes.c_int),
                 ("solver_status", ctypes.c_int),
                 ("iterations", ctypes.c_int),
+                ("levels", ctypes.c_int),
                 ("cost", ctypes.c_double),
             ]
 
@@ -91,7 +98,7 @@ class Exported:
         self.lib.aeromanip_free(self.handle)
 
 
-STATUS = {0: "ok", 1: "fallback", 2: "stopped"}
+STATUS = {0: "ok", 1: "fallback", 2: "stopped", 4: "partial"}
 
 
 def _lockstep(directory: Path, sc, steps: int, noise: float, jump_s: float = 0.0) -> dict:
@@ -109,6 +116,8 @@ def _lockstep(directory: Path, sc, steps: int, noise: float, jump_s: float = 0.0
             status = c.step(x, t)
             assert STATUS[status] == cmd.status, f"step {k}"
             assert c.out.iterations == cmd.iterations, f"step {k}"
+            solved = sum(level.success for level in cmd.levels)
+            assert c.out.levels == (solved if cmd.status in ("ok", "partial") else 0)
             np.testing.assert_allclose(np.array(c.out.u), cmd.u, rtol=0, atol=1e-8)
             np.testing.assert_allclose(
                 np.array(c.out.plan_x).reshape(-1, ctrl.nx), cmd.plan_x, rtol=0, atol=1e-8
@@ -135,6 +144,19 @@ def test_cold_retries_fallbacks_and_stops_are_the_python_controllers(built):
 def test_the_real_time_iteration_gives_the_python_controllers_commands(built):
     directory, sc = built["planar RTI"]
     assert _lockstep(directory, sc, 80, 0.002) == {"ok": 80}
+
+
+def test_the_strict_hierarchy_gives_the_python_controllers_commands(built):
+    directory, sc = built["hierarchical flight"]
+    assert sc.strategy == "hierarchical" and len(sc.problem.levels) == 2
+    assert _lockstep(directory, sc, 60, 0.003) == {"ok": 60}
+
+
+def test_a_hierarchys_partial_steps_are_the_python_controllers(built):
+    directory, sc = built["hierarchical flight, 4 iterations"]
+    seen = _lockstep(directory, sc, 60, 0.003, jump_s=5.0)
+    assert seen["ok"] > 20 and seen["partial"] > 2  # the second level failed, not the first
+    assert seen["fallback"] > 3 and seen["stopped"] > 3
 
 
 def test_a_state_that_is_not_finite_is_refused_and_changes_nothing(built):
@@ -180,7 +202,8 @@ def test_the_example_flies_the_scenario_with_the_python_controllers_error(built)
 @pytest.mark.parametrize(
     "args, key",
     [
-        (["flight"], "controller.strategy: 'hierarchical'"),
+        (["flight", "--set", "controller.hierarchy.mode=stagewise"],
+         "controller.hierarchy.mode: 'stagewise'"),
         (["contact-wall", "--variant", "cog"], "controller.backend: 'ipopt'"),
         (["contact-wall", "--variant", "cog", "--set", "controller.backend=sqp"], "tasks.force"),
         (["flight", "--set", "controller.strategy=weighted", "--set", "controller.horizon=20"],
@@ -265,5 +288,5 @@ def test_export_build_makes_and_flies_the_example(tmp_path, capsys):
         args += ["--set", s]
     assert main(args) == 0
     printed = capsys.readouterr().out
-    assert re.search(r"example: steps 800, failed 0, solve median [0-9.]+ us", printed)
+    assert re.search(r"example: steps 800, failed 0, partial 0, solve median [0-9.]+ us", printed)
     assert (out / "libaeromanip_controller.a").is_file()

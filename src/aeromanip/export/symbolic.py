@@ -3,8 +3,9 @@
 ``Controller.step`` builds the solve's parameters (the start state, the tasks' references
 over the horizon) and the condensed model's row bounds (``Transcription.variable_bounds``:
 the state box, braking into the margin, widened to hold a recovery plan) with NumPy. An
-exported controller computes the same in generated C: ``prepare_function`` states it
-as expressions of ``(x, u_prev, t)``, ``plan_function`` rolls a plan out, and
+exported controller computes the same in generated C: ``parameters_function`` states
+the parameters as expressions of ``(x, u_prev, t)``, ``bounds_function`` a level's row
+bounds as expressions of the parameters, ``plan_function`` rolls a plan out, and
 ``ee_function`` gives the end effector's position (the example's error). The tests
 check each against its NumPy twin.
 """
@@ -110,14 +111,10 @@ def start_state(tr: Transcription, x: ca.SX, u_prev: ca.SX, latency_s: float) ->
     return ca.mtimes(ca.DM(A), z0) + ca.mtimes(ca.DM(B), u_prev)
 
 
-def prepare_function(
-    model: CondensedQpModel, latency_s: float, lbg: np.ndarray, ubg: np.ndarray, name: str
-) -> ca.Function:
-    """``name(x, u_prev, t) -> (p, lbc, ubc)``: a solve's parameters at the time ``t`` [s]
-    from the measured state ``x`` and the command in flight ``u_prev`` (``Controller.step``
-    with ``latency_s``), and the condensed model's row bounds (``CondensedQpModel.start``
-    with the NLP's row bounds ``lbg``, ``ubg``)."""
-    tr = model.tr
+def parameters_function(tr: Transcription, latency_s: float, name: str) -> ca.Function:
+    """``name(x, u_prev, t) -> p``: a solve's parameters at the time ``t`` [s] from the
+    measured state ``x`` and the command in flight ``u_prev`` (``Controller.step`` with
+    ``latency_s`` [s]): the start state, then every task's references over the horizon."""
     nx, N, dt = tr.nx, tr.N, tr.problem.dt
     x, u_prev, t = ca.SX.sym("x", nx), ca.SX.sym("u_prev", nx), ca.SX.sym("t")
     z0 = start_state(tr, x, u_prev, latency_s)
@@ -126,14 +123,24 @@ def prepare_function(
     for k in range(N + 1):
         stage_params += [e.task.param_expression(t_plan + dt * k) for e in tr.problem.entries]
     p = ca.vertcat(z0, *stage_params)
-    lows, highs = state_bounds(tr, z0)
+    return ca.Function(name, [x, u_prev, t], [p], ["x", "u_prev", "t"], ["p"])
+
+
+def bounds_function(
+    model: CondensedQpModel, lbg: np.ndarray, ubg: np.ndarray, name: str
+) -> ca.Function:
+    """``name(p) -> (lbc, ubc)``: the condensed model's row bounds of a solve with the
+    parameters ``p`` (``CondensedQpModel.start`` with the NLP's row bounds ``lbg``,
+    ``ubg``): its rows', then the states' (the box, braking, widened for a recovery)."""
+    tr = model.tr
+    p = ca.SX.sym("p", tr.p.numel())
+    lows, highs = state_bounds(tr, p[: tr.nz])
     s = tr.stride
     lb_states = [lows[i // s - 1][i % s] for i in model.state_idx]
     ub_states = [highs[i // s - 1][i % s] for i in model.state_idx]
     lbc = ca.vertcat(ca.DM(lbg[model.keep]), *lb_states)
     ubc = ca.vertcat(ca.DM(ubg[model.keep]), *ub_states)
-    return ca.Function(name, [x, u_prev, t], [p, lbc, ubc], ["x", "u_prev", "t"],
-                       ["p", "lbc", "ubc"])  # fmt: skip
+    return ca.Function(name, [p], [lbc, ubc], ["p"], ["lbc", "ubc"])
 
 
 def plan_function(tr: Transcription, name: str) -> ca.Function:

@@ -5,9 +5,11 @@ of ``symbolic``'s), the compiled SQP loop's sources (``nmpc/backends/sqp``), DAQ
 sources (MIT, its license kept), the controller's step (``c/aeromanip_controller.c``),
 its header, a closed-loop example and a Makefile: a C compiler is all it needs.
 
-What can be exported: the weighted strategy on the ``sqp`` or ``sqp-rti`` backend with
-the condensed model and DAQP (short horizons: the onboard case), tasks whose parameters
-are functions of time. The rest is refused with one line naming what to change.
+What can be exported: the weighted strategy or the strict hierarchy (every level a loop
+of its own, each lower level's rows pinned to the higher levels' answers) on the ``sqp``
+or ``sqp-rti`` backend with the condensed model and DAQP (short horizons: the onboard
+case), tasks whose parameters are functions of time. The rest is refused with one line
+naming what to change.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from aeromanip.nmpc.backends.sqp.compiled_loop import loop_settings
 from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
 from aeromanip.nmpc.backends.sqp.solver import LOOP_CONSTANTS, SqpBackend
 from aeromanip.nmpc.controller import Controller
-from aeromanip.nmpc.strategies import Weighted
+from aeromanip.nmpc.strategies import MODE, Hierarchical, Weighted
 
 HERE = Path(__file__).parent / "c"
 #: the generated C file of every Function (and its header)
@@ -52,10 +54,15 @@ class ExportRequest:
 def check_scenario(sc: Scenario) -> None:
     """Refuse, before anything is built, a scenario whose controller cannot be exported
     (``ConfigError``: one line naming the key)."""
-    if sc.strategy != "weighted":
+    if sc.strategy not in ("weighted", "hierarchical"):
         raise ConfigError(
-            f"controller.strategy: {sc.strategy!r} cannot be exported to C yet; "
-            "'weighted' can (--set controller.strategy=weighted)"
+            f"controller.strategy: {sc.strategy!r} cannot be exported to C; "
+            "'weighted' and 'hierarchical' can"
+        )
+    mode = sc.hierarchy.get("mode", MODE) if sc.strategy == "hierarchical" else MODE
+    if mode != "strict":
+        raise ConfigError(
+            f"controller.hierarchy.mode: {mode!r} cannot be exported to C; 'strict' can"
         )
     if sc.backend not in ("sqp", "sqp-rti"):
         raise ConfigError(
@@ -78,29 +85,69 @@ def check_scenario(sc: Scenario) -> None:
 
 
 @dataclass(frozen=True)
-class Exportable:
-    """The parts of a controller the export writes out."""
+class ExportedLevel:
+    """One priority level (the weighted strategy: its only one) as the export writes it."""
 
     backend: SqpBackend
     model: CondensedQpModel
+    lbg: np.ndarray  # the level's NLP row bounds, rows no decision moves left free
+    ubg: np.ndarray
+    pins: np.ndarray  # (n, 2): the condensed row pinned, the higher level it is pinned to
+
+
+@dataclass(frozen=True)
+class Exportable:
+    """The parts of a controller the export writes out."""
+
+    levels: list[ExportedLevel]
     daqp: np.ndarray  # the loop's DAQP settings (``compiled_loop.DAQP_SETTINGS``)
     constants: np.ndarray  # the loop's constants (``compiled_loop.CONSTANTS``)
+    loop_opts: np.ndarray  # the loop's options (``SqpBackend._loop_opts``)
+    rti: bool
+    hierarchical: bool
+
+
+def _level(backend: SqpBackend) -> ExportedLevel:
+    """A level's model, its row bounds and the rows the higher levels' answers pin
+    (``Hierarchical._bounds`` in ``strict`` mode: a higher level's residual rows held at
+    their values there, the rows no decision moves left free)."""
+    model, tr = backend.model, backend.tr
+    lbg, ubg = tr.lbg.copy(), tr.ubg.copy()
+    row_of = {r: i for i, r in enumerate(model.keep)}
+    pins = []
+    for j, rows in enumerate(tr.hier_rows):
+        for r in rows:
+            if tr.g_movable[r]:
+                pins.append((row_of[r], j))
+            else:
+                lbg[r], ubg[r] = -np.inf, np.inf
+    return ExportedLevel(backend, model, lbg, ubg, np.array(pins, dtype=int).reshape(-1, 2))
 
 
 def exportable(ctrl: Controller) -> Exportable:
-    """What of ``ctrl``'s only level the export writes, or a ``ConfigError`` naming what
+    """What of ``ctrl``'s levels the export writes, or a ``ConfigError`` naming what
     keeps it from being exported."""
-    backend = ctrl.strategy.solvers[0].backend
-    if not isinstance(ctrl.strategy, Weighted) or not isinstance(backend, SqpBackend):
-        raise ConfigError("controller: only the weighted 'sqp' or 'sqp-rti' can be exported")
-    settings = loop_settings(backend.model, backend.opts, LOOP_CONSTANTS)
-    if settings is None:
+    strategy = ctrl.strategy
+    backends = [st.backend for st in strategy.solvers]
+    strict = isinstance(strategy, Hierarchical) and strategy.mode == "strict"
+    if not (isinstance(strategy, Weighted) or strict) or not all(
+        isinstance(b, SqpBackend) for b in backends
+    ):
+        raise ConfigError(
+            "controller: only the weighted or strict hierarchical 'sqp' or 'sqp-rti' can be "
+            "exported"
+        )
+    settings = [loop_settings(b.model, b.opts, LOOP_CONSTANTS) for b in backends]
+    if any(s is None for s in settings):
         raise ConfigError(
             "controller.solver_options: the exported loop solves the condensed QP with DAQP "
             "(qpsol = 'daqp', or 'auto' up to condense_max_horizon steps, and DAQP options "
             "it knows)"
         )
-    return Exportable(backend, backend.model, *settings)
+    daqp, constants = settings[0]  # type: ignore[misc]
+    first = backends[0]
+    return Exportable([_level(b) for b in backends], daqp, constants, first._loop_opts,
+                      bool(first.opts["rti"]), strict)  # fmt: skip
 
 
 def _c_array(ctype: str, name: str, values: np.ndarray) -> str:
@@ -131,57 +178,119 @@ def _declare(name: str) -> str:
     )
 
 
-def _config(ex: Exportable, names: dict[str, str]) -> str:
+#: one level's loop and bounds in ``aeromanip_config.h`` (``am_levels``)
+LEVEL_TYPE = """typedef struct {
+  const int* dims;              /* nU, nc, nr, nh, np */
+  const int* hier_row;          /* nh: the row that bounds each hierarchy residual */
+  const unsigned char* always;  /* nc: rows always given to the QP */
+  const int* sizes;             /* the screened QP's row counts */
+  int n_sizes;
+  double screen;
+  const int* shift_rows;        /* nc: the row that predicts each one a step on */
+  const int* pins;              /* n_pins x 2: a row pinned, the higher level it holds */
+  int n_pins;
+  casadi_fn data, merit, hess, bounds;
+  casadi_work_fn data_work, merit_work, hess_work, bounds_work;
+} AmLevel;
+"""
+
+
+def _level_arrays(i: int, lv: ExportedLevel) -> str:
+    """Level ``i``'s constant arrays."""
+    m, qp = lv.model, lv.model.qp
+    dims = np.array([m.nU, m.nc, m.nr, m.nh, m.tr.p.numel()])
+    return "".join(
+        [_c_array("int", f"am_dims_{i}", dims),
+         _c_array("int", f"am_hier_row_{i}", np.ascontiguousarray(m.hier_elem_row)),
+         _c_array("unsigned char", f"am_always_{i}", qp.always.astype(int)),
+         _c_array("int", f"am_sizes_{i}", np.array(qp._sizes)),
+         _c_array("int", f"am_shift_rows_{i}", qp.shift_rows),
+         _c_array("int", f"am_pins_{i}", lv.pins)]
+    )  # fmt: skip
+
+
+def _level_entry(i: int, lv: ExportedLevel, names: list[str]) -> str:
+    """Level ``i``'s row of ``am_levels``; ``names``: its data, merit, hess (or ""),
+    bounds Functions."""
+    qp = lv.model.qp
+    fns = [n or "0" for n in names]
+    works = [f"{n}_work" if n else "0" for n in names]
+    return (
+        f"  {{am_dims_{i}, am_hier_row_{i}, am_always_{i}, am_sizes_{i}, {len(qp._sizes)}, "
+        f"{_c_double(float(qp.screen))}, am_shift_rows_{i}, am_pins_{i}, {len(lv.pins)},\n"
+        f"   {', '.join(fns)},\n   {', '.join(works)}}},\n"
+    )
+
+
+def _config(ex: Exportable, names: dict[str, str], level_names: list[list[str]]) -> str:
     """``aeromanip_config.h``: the scenario's sizes, constants and Functions."""
-    m, qp = ex.model, ex.model.qp
-    tr = m.tr
+    first = ex.levels[0].model
+    tr = first.tr
     b = tr.problem.bounds
-    dims = {"NX": tr.nx, "N": tr.N, "NU": m.nU, "NC": m.nc, "NP": tr.p.numel(),
-            "N_SIZES": len(qp._sizes)}  # fmt: skip
+    nc_max = max(lv.model.nc for lv in ex.levels)
+    dims = {"NX": tr.nx, "N": tr.N, "NU": first.nU, "NC": nc_max, "NP": tr.p.numel(),
+            "LEVELS": len(ex.levels)}  # fmt: skip
     lines = ["/* generated by aeromanip export: the scenario's sizes and constants */",
              "#ifndef AEROMANIP_CONFIG_H", "#define AEROMANIP_CONFIG_H", "",
              "#include <math.h>", '#include "model_fn.h"', ""]  # fmt: skip
     lines += [f"#define AM_{k} {v}" for k, v in dims.items()]
-    lines.append(f"#define AM_SCREEN {_c_double(float(qp.screen))}")
-    for key in ("data", "merit", "hess", "prepare", "plan"):
-        fn = names.get(key)
-        lines.append(f"#define AM_{key.upper()} {fn or '0'}")
-        lines.append(f"#define AM_{key.upper()}_WORK {fn + '_work' if fn else '0'}")
+    for key, fn in names.items():
+        lines.append(f"#define AM_{key.upper()} {fn}")
+        lines.append(f"#define AM_{key.upper()}_WORK {fn}_work")
     text = "\n".join(lines) + "\n\n"
-    text += "".join(_declare(n) for n in names.values())
-    hier = np.ascontiguousarray(m.hier_elem_row, dtype=int)
-    dims_arr = np.array([m.nU, m.nc, m.nr, m.nh, tr.p.numel()])
-    text += _c_array("int", "am_dims", dims_arr)
-    text += _c_array("int", "am_hier_row", hier)
-    text += _c_array("unsigned char", "am_always", qp.always.astype(int))
-    text += _c_array("int", "am_sizes", np.array(qp._sizes))
+    declared = [*names.values(), *(n for level in level_names for n in level if n)]
+    text += "".join(_declare(n) for n in declared)
+    text += "\n" + LEVEL_TYPE + "\n"
     text += _c_array("double", "am_daqp", ex.daqp)
     text += _c_array("double", "am_constants", ex.constants)
-    text += _c_array("double", "am_opts", ex.backend._loop_opts)
-    text += _c_array("int", "am_shift_rows", qp.shift_rows)
-    text += _c_array("int", "am_shift_vars", m.shift_vars)
-    text += _c_array("double", "am_lbU", m.lbU)
-    text += _c_array("double", "am_ubU", m.ubU)
+    text += _c_array("double", "am_opts", ex.loop_opts)
+    text += _c_array("int", "am_shift_vars", first.shift_vars)
+    text += _c_array("double", "am_lbU", first.lbU)
+    text += _c_array("double", "am_ubU", first.ubU)
     text += _c_array("double", "am_u_lower", b.u_lower)
     text += _c_array("double", "am_u_upper", b.u_upper)
-    return text + "\n#endif\n"
+    text += "".join(_level_arrays(i, lv) for i, lv in enumerate(ex.levels))
+    text += "\nstatic const AmLevel am_levels[AM_LEVELS] = {\n"
+    text += "".join(
+        _level_entry(i, lv, ns) for i, (lv, ns) in enumerate(zip(ex.levels, level_names,
+                                                                   strict=True))
+    )  # fmt: skip
+    return text + "};\n\n#endif\n"
 
 
-def _functions(ex: Exportable, ctrl: Controller) -> tuple[list[ca.Function], dict[str, str]]:
-    """Every Function the export generates, and the loop's and the step's names for them."""
-    m, tr = ex.model, ex.model.tr
-    data, merit = m.sources[0], m.sources[1]
-    hess = m.sources[4] if len(m.sources) > 4 else None
-    prepare = symbolic.prepare_function(m, ctrl.latency_s, tr.lbg, tr.ubg, "aeromanip_prepare")
+def _functions(
+    ex: Exportable, ctrl: Controller
+) -> tuple[list[ca.Function], dict[str, str], list[list[str]]]:
+    """Every Function the export generates; the step's names for its own (parameters,
+    plan) and each level's data, merit, exact Hessian ("" if none) and bounds."""
+    tr = ex.levels[0].model.tr
+    parameters = symbolic.parameters_function(tr, ctrl.latency_s, "aeromanip_parameters")
     plan = symbolic.plan_function(tr, "aeromanip_plan")
-    fs = [data, merit, prepare, plan, symbolic.ee_function(tr, "aeromanip_ee"),
+    fs = [parameters, plan, symbolic.ee_function(tr, "aeromanip_ee"),
           symbolic.reference_function(tr, "aeromanip_reference")]  # fmt: skip
-    names = {"data": data.name(), "merit": merit.name(), "prepare": prepare.name(),
-             "plan": plan.name()}  # fmt: skip
-    if hess is not None:
-        fs.append(hess)
-        names["hess"] = hess.name()
-    return fs, names
+    names = {"parameters": parameters.name(), "plan": plan.name()}
+    level_names = []
+    for i, lv in enumerate(ex.levels):
+        m = lv.model
+        own = [_renamed(m.sources[0], f"aeromanip_data_{i}"),
+               _renamed(m.sources[1], f"aeromanip_merit_{i}"),
+               _renamed(m.sources[4], f"aeromanip_hessian_{i}") if len(m.sources) > 4 else None,
+               symbolic.bounds_function(m, lv.lbg, lv.ubg, f"aeromanip_bounds_{i}")]  # fmt: skip
+        fs += [f for f in own if f is not None]
+        level_names.append([f.name() if f is not None else "" for f in own])
+    return fs, names, level_names
+
+
+def _renamed(f: ca.Function, name: str) -> ca.Function:
+    """The expression Function ``f`` under ``name`` (the levels' model Functions share
+    names: one C file holds them all)."""
+    args = f.sx_in()
+    return ca.Function(name, args, f.call(args), f.name_in(), f.name_out())
+
+
+def _strategy_text(ex: Exportable) -> str:
+    """The strategy, as the header says it."""
+    return f"strict hierarchical ({len(ex.levels)} levels)" if ex.hierarchical else "weighted"
 
 
 def _fill(template: str, values: dict[str, str]) -> str:
@@ -194,7 +303,7 @@ def export_controller(req: ExportRequest, out: Path) -> list[Path]:
     """Write the export of ``req`` into ``out`` (created); the files written."""
     ctrl = req.controller
     ex = exportable(ctrl)
-    fs, names = _functions(ex, ctrl)  # refuses tasks without expressions before writing
+    fs, names, level_names = _functions(ex, ctrl)  # refuses what it cannot write first
     src, inc, example = out / "src", out / "include", out / "example"
     for d in (src, inc, example):
         d.mkdir(parents=True, exist_ok=True)
@@ -205,13 +314,14 @@ def export_controller(req: ExportRequest, out: Path) -> list[Path]:
     for name in LOOP_FILES:
         shutil.copyfile(compiled_loop.HERE / name, src / name)
     shutil.copyfile(HERE / "aeromanip_controller.c", src / "aeromanip_controller.c")
-    (src / "aeromanip_config.h").write_text(_config(ex, names))
-    tr = ex.model.tr
+    (src / "aeromanip_config.h").write_text(_config(ex, names, level_names))
+    tr = ex.levels[0].model.tr
     values = {
         "SCENARIO": req.scenario, "VERSION": version("aeromanip"), "COMMAND": req.command,
         "STATE_NAMES": ", ".join(tr.problem.robot.state_names), "NX": str(tr.nx),
         "N": str(tr.N), "DT": repr(float(tr.problem.dt)),
-        "STRATEGY": "weighted", "BACKEND": "RTI" if ex.backend.opts["rti"] else "SQP",
+        "STRATEGY": _strategy_text(ex), "LEVELS": str(len(ex.levels)),
+        "BACKEND": "RTI" if ex.rti else "SQP",
         "STEPS": str(max(1, round(req.duration_s / tr.problem.dt))),
         "X0": ", ".join(repr(float(v)) for v in req.x0),
     }  # fmt: skip
