@@ -224,7 +224,7 @@ void sqp_free(Sqp* s) {
                      &s->Ad, &s->soc_c, &s->sd, &s->slam_a, &s->slam_x, &s->dH, &s->dA,
                      &s->dlo, &s->dup, &s->dlam, &s->rlam, &s->tmp, &s->L, &s->C, &s->V,
                      &s->Hc, &s->w_scaling, &s->w_M, &s->w_dupper, &s->w_dlower,
-                     &s->w_Rinv, &s->w_v, &s->w_R, &s->T};
+                     &s->w_Rinv, &s->w_v, &s->w_R, &s->T, &s->factor};
   for (size_t i = 0; i < sizeof bufs / sizeof bufs[0]; ++i) free(*bufs[i]);
   s->work.settings = 0; /* s's own: not DAQP's to free */
   free_daqp_workspace(&s->work);
@@ -266,7 +266,7 @@ Sqp* sqp_new(const int* dims, const int* hier_row, const unsigned char* always,
       {&s->C, wide * n}, {&s->V, n * n}, {&s->Hc, n * n}, {&s->w_scaling, n + nc},
       {&s->w_M, n * nc}, {&s->w_dupper, n + nc}, {&s->w_dlower, n + nc},
       {&s->w_Rinv, n * (n + 1) / 2}, {&s->w_v, n}, {&s->w_R, n * n},
-      {&s->T, (nr > wide ? nr : wide) * n}};
+      {&s->T, (nr > wide ? nr : wide) * n}, {&s->factor, n * (n + 1) / 2}};
   for (size_t i = 0; i < sizeof plan / sizeof plan[0]; ++i) {
     *plan[i].p = calloc(plan[i].size + 1, sizeof(double));
     ok = ok && *plan[i].p;

@@ -26,23 +26,8 @@ static int diagonal(const double* H, int n) {
    update_M and update_v, which run along its packed columns) */
 static void ldp_products(const double* Rinv, const double* A, const double* f, int n, int r,
                          double* M, double* v) {
-  size_t packed = (size_t)n * (n + 1) / 2;
-  for (int k = 0; k < r; ++k) {
-    double* mk = M + (size_t)k * n;
-    const double* ak = A + (size_t)k * n;
-    memset(mk, 0, sizeof(double) * (size_t)n);
-    for (int j = 0; j < n; ++j) {
-      double a = ak[j];
-      if (a == 0.0) continue;
-      const double* row_j = Rinv + packed - (size_t)(n - j) * (n - j + 1) / 2;
-      for (int i = 0; i < n - j; ++i) mk[j + i] += a * row_j[i];
-    }
-  }
-  memset(v, 0, sizeof(double) * (size_t)n);
-  for (int j = 0; j < n; ++j) {
-    const double* row_j = Rinv + packed - (size_t)(n - j) * (n - j + 1) / 2;
-    for (int i = 0; i < n - j; ++i) v[j + i] += f[j] * row_j[i];
-  }
+  for (int k = 0; k < r; ++k) la_packed_vecmat(A + (size_t)k * n, Rinv, n, M + (size_t)k * n);
+  la_packed_vecmat(f, Rinv, n, v);
 }
 
 /* DAQP's setup_daqp (its api.c) in the workspace allocated once by sqp_new: the same
@@ -69,8 +54,15 @@ static int setup_rows(Sqp* s, DAQPProblem* qp) {
   }
   /* update_ldp's steps in its order, the products by rows (contiguous, vectorised) */
   for (int i = 0; i < qp->m; ++i) w->sense[i] = qp->sense[i];
-  if (!la_cholesky_inverse_packed(qp->H, qp->n, w->settings->eps_prox, s->w_R, w->Rinv))
-    return EXIT_NONCONVEX;
+  size_t packed = (size_t)qp->n * (qp->n + 1) / 2;
+  if (s->factor_valid) {
+    memcpy(w->Rinv, s->factor, sizeof(double) * packed);
+  } else {
+    if (!la_cholesky_inverse_packed(qp->H, qp->n, w->settings->eps_prox, s->w_R, w->Rinv))
+      return EXIT_NONCONVEX;
+    memcpy(s->factor, w->Rinv, sizeof(double) * packed);
+    s->factor_valid = 1;
+  }
   ldp_products(w->Rinv, qp->A, qp->f, qp->n, qp->m - qp->ms, w->M, w->v);
   normalize_M(w);
   normalize_Rinv(w);
@@ -251,6 +243,7 @@ static void convexify(Sqp* s, double* H, const double* lam_c, const double* lam_
 int hessian(Sqp* s, const double* U, const double* p, const double* lam_c,
                    const double* lam_u, int exact, double regularization, double damping) {
   int n = s->nU;
+  s->factor_valid = 0;
   if (exact && s->has_hess) {
     if (fn_call(&s->hess, U, p, lam_c, s->H, 0, 0, 0, 0)) return 1;
     convexify(s, s->H, lam_c, lam_u);

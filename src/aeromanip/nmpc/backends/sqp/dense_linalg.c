@@ -62,43 +62,85 @@ void la_matvec_t(const double* M, int m, int n, const double* x, double* y) {
   for (int j = 0; j < n; ++j) y[j] = la_dot(M + (size_t)j * m, x, m);
 }
 
+/* R's rows k >= from, columns j >= k, less the outer products of the b (<= 4) pivot rows
+   i0.. (already scaled): the trailing update of a right-looking Cholesky, four rows at a
+   time so that each row below is read and written once per block */
+static void cholesky_trailing(double* R, int n, int i0, int b, int from) {
+  const double* r0 = R + (size_t)i0 * n;
+  const double* r1 = b > 1 ? r0 + n : r0;
+  const double* r2 = b > 2 ? r1 + n : r0;
+  const double* r3 = b > 3 ? r2 + n : r0;
+  for (int k = from; k < n; ++k) {
+    double f0 = r0[k], f1 = b > 1 ? r1[k] : 0.0, f2 = b > 2 ? r2[k] : 0.0;
+    double f3 = b > 3 ? r3[k] : 0.0;
+    double* rk = R + (size_t)k * n;
+    for (int j = k; j < n; ++j) rk[j] -= f0 * r0[j] + f1 * r1[j] + f2 * r2[j] + f3 * r3[j];
+  }
+}
+
+/* y = a' P (P: n x n upper triangular, its rows packed: row j holds columns j..n-1):
+   y[c] = sum_{j <= c} a[j] P[j][c]; four rows of P at a time (y read and written once
+   per four), the blocks where a is zero skipped */
+void la_packed_vecmat(const double* a, const double* P, int n, double* y) {
+  memset(y, 0, sizeof(double) * (size_t)n);
+  const double* r0 = P; /* row j */
+  int j = 0;
+  for (; j + 3 < n; j += 4) {
+    const double* r1 = r0 + (n - j);
+    const double* r2 = r1 + (n - j - 1);
+    const double* r3 = r2 + (n - j - 2);
+    double a0 = a[j], a1 = a[j + 1], a2 = a[j + 2], a3 = a[j + 3];
+    if (a0 != 0.0 || a1 != 0.0 || a2 != 0.0 || a3 != 0.0) {
+      double* o = y + j; /* column j */
+      o[0] += a0 * r0[0];
+      o[1] += a0 * r0[1] + a1 * r1[0];
+      o[2] += a0 * r0[2] + a1 * r1[1] + a2 * r2[0];
+      for (int i = 0; i < n - j - 3; ++i)
+        o[3 + i] += a0 * r0[3 + i] + a1 * r1[2 + i] + a2 * r2[1 + i] + a3 * r3[i];
+    }
+    r0 = r3 + (n - j - 3);
+  }
+  for (; j < n; r0 += n - j, ++j)
+    for (int i = 0; i < n - j; ++i) y[j + i] += a[j] * r0[i];
+}
+
 /* DAQP's Rinv (its utils.c, update_Rinv): the inverse of the upper triangular R with
    H + eps I = R'R (H: n x n symmetric, one triangle read), its rows packed (row i holds
    columns i..n-1). Both halves run along rows, so their inner loops are contiguous and
-   vectorise (DAQP's Cholesky runs down columns of its packed rows). R: n x n scratch.
+   vectorise (DAQP's Cholesky runs down columns of its packed rows); both work by
+   blocks of four rows. R: n x n scratch.
    0 where H + eps I is not positive definite. */
 int la_cholesky_inverse_packed(const double* H, int n, double eps, double* R, double* Rinv) {
   for (int i = 0; i < n; ++i) {
     memcpy(R + (size_t)i * n + i, H + (size_t)i * n + i, sizeof(double) * (size_t)(n - i));
     R[(size_t)i * n + i] += eps;
   }
-  for (int i = 0; i < n; ++i) { /* right-looking: row i, then the rows below it */
-    double* ri = R + (size_t)i * n;
-    if (!(ri[i] > 0.0)) return 0;
-    ri[i] = sqrt(ri[i]);
-    double inv = 1.0 / ri[i];
-    for (int j = i + 1; j < n; ++j) ri[j] *= inv;
-    for (int k = i + 1; k < n; ++k) {
-      double f = ri[k];
-      double* rk = R + (size_t)k * n;
-      for (int j = k; j < n; ++j) rk[j] -= f * ri[j];
+  for (int i0 = 0; i0 < n; i0 += 4) { /* right-looking, by blocks of four pivot rows */
+    int b = n - i0 < 4 ? n - i0 : 4;
+    for (int i = i0; i < i0 + b; ++i) { /* the block's rows */
+      double* ri = R + (size_t)i * n;
+      if (!(ri[i] > 0.0)) return 0;
+      ri[i] = sqrt(ri[i]);
+      double inv = 1.0 / ri[i];
+      for (int j = i + 1; j < n; ++j) ri[j] *= inv;
+      for (int k = i + 1; k < i0 + b; ++k) {
+        double f = ri[k];
+        double* rk = R + (size_t)k * n;
+        for (int j = k; j < n; ++j) rk[j] -= f * ri[j];
+      }
     }
+    cholesky_trailing(R, n, i0, b, i0 + b); /* then the rows below it */
   }
-  /* row i of R^-1 = (e_i - sum_{k>i} R[i][k] (row k of R^-1)) / R[i][i], from the last */
+  /* row i of R^-1 (packed, from column i) = (e_i - sum_{k>i} R[i][k] (row k of R^-1)) /
+     R[i][i]: the rows k > i are R^-1's trailing block, packed; from the last row */
   size_t packed = (size_t)n * (n + 1) / 2;
   for (int i = n - 1; i >= 0; --i) {
-    double* out = Rinv + packed - (size_t)(n - i) * (n - i + 1) / 2;
     const double* ri = R + (size_t)i * n;
-    out[0] = 1.0;
-    for (int j = 1; j < n - i; ++j) out[j] = 0.0;
-    for (int k = i + 1; k < n; ++k) {
-      double f = ri[k];
-      const double* row_k = Rinv + packed - (size_t)(n - k) * (n - k + 1) / 2;
-      double* o = out + (k - i);
-      for (int j = 0; j < n - k; ++j) o[j] -= f * row_k[j];
-    }
+    double* out = Rinv + packed - (size_t)(n - i) * (n - i + 1) / 2;
     double inv = 1.0 / ri[i];
-    for (int j = 0; j < n - i; ++j) out[j] *= inv;
+    la_packed_vecmat(ri + i + 1, out + (n - i), n - i - 1, out + 1);
+    out[0] = inv;
+    for (int j = 1; j < n - i; ++j) out[j] *= -inv;
   }
   return 1;
 }
@@ -122,12 +164,6 @@ int la_positive_definite(const double* H, int n, double* L) {
   return 1;
 }
 
-/* eigenvalues (into lam, ascending) and eigenvectors (columns of V) of a symmetric
-   matrix S (n x n, read): Householder tridiagonalisation and the implicit QL method
-   (EISPACK's tred2 and tql2, as in the public-domain JAMA); e: n scratch */
-/* eigenvalues (into lam, ascending) and eigenvectors (columns of V) of a symmetric
-   matrix S (n x n, read): Householder tridiagonalisation and the implicit QL method
-   (EISPACK's tred2 and tql2, as in the public-domain JAMA); e: n scratch */
 #define AT(i, j) V[(i) + (size_t)(j) * n]
 
 /* Householder reduction of V (symmetric, overwritten by the transformation) to
@@ -258,6 +294,9 @@ static void tql2(double* V, int n, double* d, double* e) {
 }
 #undef AT
 
+/* eigenvalues (into lam, ascending) and eigenvectors (columns of V) of a symmetric
+   matrix S (n x n, read): Householder tridiagonalisation and the implicit QL method
+   (EISPACK's tred2 and tql2, as in the public-domain JAMA); e: n scratch */
 void sqp_eigen_symmetric(const double* S, int n, double* lam, double* V, double* e) {
   memcpy(V, S, sizeof(double) * (size_t)n * n);
   tred2(V, n, lam, e);
