@@ -1,8 +1,8 @@
 """``aeromanip export``: a scenario's controller as a self-contained C library.
 
 The directory written holds the generated model (CasADi's C of the SQP's Functions and
-of ``symbolic``'s), the compiled SQP loop's sources (``nmpc/backends/sqp``), DAQP's
-sources (MIT, its license kept), the controller's step (``c/aeromanip_controller.c``),
+of ``symbolic``'s), the compiled SQP loop's sources with DAQP's (``nmpc/backends/sqp``;
+DAQP's MIT license kept), the controller's step (``c/aeromanip_controller.c``),
 its header, a closed-loop example and a Makefile: a C compiler is all it needs.
 
 What can be exported: the weighted strategy or the strict hierarchy (every level a loop
@@ -328,5 +328,6 @@ def export_controller(req: ExportRequest, out: Path) -> list[Path]:
     for name, where in (("aeromanip_controller.h", inc), ("example.c", example),
                         ("Makefile", out), ("README.md", out)):  # fmt: skip
         (where / name).write_text(_fill((HERE / f"{name}.in").read_text(), values))
-    shutil.copytree(HERE / "third_party", out / "third_party", dirs_exist_ok=True)
+    third_party = compiled_loop.HERE / compiled_loop.THIRD_PARTY
+    shutil.copytree(third_party, out / compiled_loop.THIRD_PARTY, dirs_exist_ok=True)
     return sorted(p for p in out.rglob("*") if p.is_file())

@@ -46,13 +46,15 @@ class CSources:
     """A library's C sources (compiled together) and headers in ``directory``, the
     libraries it links (paths), its purpose (for the warning on a failed build), and
     whether ``AEROMANIP_CODEGEN=0`` (the model's Functions in-process) turns it off
-    too (a part that runs the generated model does; a solver of its own does not)."""
+    too (a part that runs the generated model does; a solver of its own does not).
+    ``includes``: header directories in ``directory``, searched before CasADi's."""
 
     name: str
     directory: Path
     sources: Sequence[str]
     headers: Sequence[str]
     link: Sequence[str] = ()
+    includes: Sequence[str] = ()
     purpose: str = "a compiled part"
     cflags: Sequence[str] = CFLAGS
     follows_codegen: bool = True
@@ -79,7 +81,8 @@ def entry_of(spec: CSources, cc: str) -> CacheEntry:
     h = hashlib.sha256()
     for name in (*spec.sources, *spec.headers):
         h.update((spec.directory / name).read_bytes())
-    h.update(" ".join((ca.__version__, Path(cc).name, *spec.cflags, *spec.link)).encode())
+    h.update(" ".join((ca.__version__, Path(cc).name, *spec.cflags, *spec.link,
+                       *spec.includes)).encode())  # fmt: skip
     if "-march=native" in spec.cflags:
         h.update(cpu_identity().encode())
     return CacheEntry(cache_dir() / f"{spec.name}-{h.hexdigest()[:20]}.so")
@@ -118,8 +121,9 @@ def _build(spec: CSources, entry: CacheEntry, cc: str) -> bool:
     with tempfile.TemporaryDirectory(prefix=f"build-{spec.name}-", dir=entry.lib.parent) as tmp:
         out = Path(tmp) / entry.lib.name
         sources = [str(spec.directory / name) for name in spec.sources]
-        cmd = [cc, *spec.cflags, *sources, f"-I{casadi_dir() / 'include'}", "-o", str(out),
-               *spec.link, "-lm"]  # fmt: skip
+        includes = [f"-I{spec.directory / d}" for d in spec.includes]
+        cmd = [cc, *spec.cflags, *sources, *includes, f"-I{casadi_dir() / 'include'}", "-o",
+               str(out), *spec.link, "-lm"]  # fmt: skip
         proc = None
         try:
             with deferred():  # the compiler is started and recorded, or neither

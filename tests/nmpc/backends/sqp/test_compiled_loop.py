@@ -120,7 +120,9 @@ def test_a_bad_compiled_loop_option_is_one_line():
 
 def test_a_build_failure_is_one_warning(monkeypatch, tmp_path, caplog):
     monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
-    for name in (*compiled_loop.SOURCES, *compiled_loop.HEADERS):
+    loop = compiled_loop
+    for name in (*loop.SOURCES, *loop.HEADERS, *loop.DAQP_SOURCES, *loop.DAQP_HEADERS):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / name).write_text("this is not C\n")
     with caplog.at_level(logging.WARNING):
         assert compiled_loop.loop_library(tmp_path) is None

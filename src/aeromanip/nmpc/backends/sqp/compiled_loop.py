@@ -1,10 +1,13 @@
 """The condensed model's SQP loop in compiled C: one call per solve.
 
-``condensed_loop.c`` (with ``condensed_qp.c``, ``dense_linalg.c``, ``model_fn.c``) runs the loop of
-``solver.SqpBackend._sqp`` on the condensed model (``condensed_qp``) step for step: the
-model's generated Functions (already compiled by ``codegen``) are called through their C
-symbols, and the QP is solved by DAQP's C library, as CasADi's own DAQP interface calls
-it (the static library and headers come with CasADi's wheel). The loop itself is built
+``condensed_loop.c`` (with ``condensed_qp.c``, ``dense_linalg.c``, ``model_fn.c``) runs the
+loop of ``solver.SqpBackend._sqp`` on the condensed model (``condensed_qp``) step for step:
+the model's generated Functions (already compiled by ``codegen``) are called through
+their C symbols, and the QP is solved by DAQP, as CasADi's own DAQP interface calls it.
+DAQP is built with the loop from the sources in ``third_party/daqp`` (DAQP 0.5.1, MIT:
+the sources of CasADi's own ``libdaqpstat.a``), so the loop does not depend on the
+internals of whichever DAQP a CasADi wheel carries; ``aeromanip export`` ships the same
+files. The loop itself is built
 once per machine into the compile cache (``<cache>/aeromanip_condensed_loop-<hash>.so``,
 checked like every entry); it takes the Python loop's constants from Python (each
 stated once). The loop is used where it applies (``solver_options.compiled_loop``, the
@@ -21,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from aeromanip.nmpc.backends.c_library import NATIVE_CFLAGS, CSources, casadi_dir, entry_of, load
+from aeromanip.nmpc.backends.c_library import NATIVE_CFLAGS, CSources, entry_of, load
 from aeromanip.nmpc.backends.cache import CacheEntry
 from aeromanip.nmpc.backends.codegen import library_of
 from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
@@ -29,9 +32,18 @@ from aeromanip.nmpc.backends.sqp.convexify import CONVEXIFY_DECADES, EIGEN_FLOOR
 from aeromanip.nmpc.backends.sqp.dense_qp import CROSS_TOL, SCREEN_ROUNDS, SOLVERS
 
 HERE = Path(__file__).parent
+#: DAQP 0.5.1's sources (MIT; the sources of CasADi's ``libdaqpstat.a``), in ``HERE``
+THIRD_PARTY = "third_party"
+DAQP = Path(THIRD_PARTY) / "daqp"
 #: the loop's C sources (compiled together) and headers
 SOURCES = ("condensed_loop.c", "condensed_qp.c", "dense_linalg.c", "model_fn.c")
 HEADERS = ("sqp_loop.h", "dense_linalg.h", "model_fn.h")
+DAQP_SOURCES = tuple(str(DAQP / "src" / f"{name}.c") for name in (
+    "api", "auxiliary", "bnb", "daqp", "daqp_prox", "factorization", "utils"))  # fmt: skip
+DAQP_HEADERS = tuple(str(DAQP / "include" / "daqp" / f"{name}.h") for name in (
+    "api", "auxiliary", "bnb", "constants", "daqp", "daqp_prox", "factorization", "types",
+    "utils"))  # fmt: skip
+DAQP_INCLUDES = (str(DAQP / "include"), str(DAQP / "include" / "daqp"))
 #: the Python loop's constants the C loop takes (``Constants`` in sqp_loop.h), in order
 CONSTANTS = (
     "screen_rounds", "cross_tol", "exact_from_iteration", "armijo", "backtrack", "min_step",
@@ -96,9 +108,9 @@ def loop_settings(
 
 
 def _spec(source_dir: Path) -> CSources:
-    link = (str(casadi_dir() / "libdaqpstat.a"),)
-    return CSources("aeromanip_condensed_loop", source_dir, SOURCES, HEADERS, link,
-                    "the compiled SQP loop", NATIVE_CFLAGS)  # fmt: skip
+    return CSources("aeromanip_condensed_loop", source_dir, SOURCES + DAQP_SOURCES,
+                    HEADERS + DAQP_HEADERS, (), DAQP_INCLUDES, "the compiled SQP loop",
+                    NATIVE_CFLAGS)  # fmt: skip
 
 
 def loop_library(source_dir: Path = HERE) -> ctypes.CDLL | None:
