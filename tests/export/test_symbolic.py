@@ -34,12 +34,12 @@ def _controller(case):
     return sc, make_controller(sc)
 
 
-def _numpy_twin(sc, ctrl, x, u_prev, t):
+def _numpy_twin(sc, ctrl, x, u_prev, rates, t):
     """What ``Controller.step`` and ``CondensedQpModel.start`` compute."""
     st = ctrl.strategy.solvers[0]
     tr, model = st.tr, st.backend.model
     ctrl.reset(u_prev)
-    x0 = ctrl._start(x, None)
+    x0 = ctrl._start(x, rates)
     p = tr.parameters(x0, u_prev, sc.problem.stage_params(t + ctrl.latency_s), ctrl._rates)
     lbw, ubw = tr.variable_bounds(p)
     lbc = np.concatenate([tr.lbg[model.keep], lbw[model.state_idx]])
@@ -69,9 +69,10 @@ def test_the_parameters_and_row_bounds_equal_the_python_controllers(case):
     widened = 0
     for x, u_prev in _states(sc, rng, 120):
         t = rng.uniform(-1.0, sc.duration + 5)
-        p, lbc, ubc, wide = _numpy_twin(sc, ctrl, x, u_prev, t)
+        rates = u_prev + rng.normal(0.0, 0.2, u_prev.size)  # measured: not the command
+        p, lbc, ubc, wide = _numpy_twin(sc, ctrl, x, u_prev, rates, t)
         widened += wide
-        got_p = np.array(params(x, u_prev, t)).ravel()
+        got_p = np.array(params(x, u_prev, rates, t)).ravel()
         np.testing.assert_allclose(got_p, p, rtol=0, atol=1e-12)
         for have, want in zip(bounds(got_p), (lbc, ubc), strict=True):
             have = np.array(have).ravel()

@@ -4,7 +4,7 @@
 over the horizon) and the condensed model's row bounds (``Transcription.variable_bounds``:
 the state box, braking into the margin, widened to hold a recovery plan) with NumPy. An
 exported controller computes the same in generated C: ``parameters_function`` states
-the parameters as expressions of ``(x, u_prev, t)``, ``bounds_function`` a level's row
+the parameters as expressions of ``(x, u_prev, rates, t)``, ``bounds_function`` a level's row
 bounds as expressions of the parameters, ``plan_function`` rolls a plan out, and
 ``ee_function`` gives the end effector's position (the example's error). The tests
 check each against its NumPy twin.
@@ -100,11 +100,13 @@ def state_bounds(tr: Transcription, z0: ca.SX) -> tuple[list[ca.SX], list[ca.SX]
     return lows, highs
 
 
-def start_state(tr: Transcription, x: ca.SX, u_prev: ca.SX, latency_s: float) -> ca.SX:
-    """``Controller._start``'s ``z0``: the augmented state (rates as the last command), moved
-    on by ``latency_s`` [s] under the last command."""
+def start_state(
+    tr: Transcription, x: ca.SX, u_prev: ca.SX, rates: ca.SX, latency_s: float
+) -> ca.SX:
+    """``Controller._start``'s ``z0``: the augmented state (the lagged DoFs' actual rates
+    ``rates``), moved on by ``latency_s`` [s] under the last command."""
     model = tr.model
-    z0 = ca.vertcat(x, u_prev, u_prev[model.lagged.tolist()])
+    z0 = ca.vertcat(x, u_prev, rates[model.lagged.tolist()])
     if latency_s <= 0:
         return z0
     A, B = model.matrices(latency_s)
@@ -112,18 +114,20 @@ def start_state(tr: Transcription, x: ca.SX, u_prev: ca.SX, latency_s: float) ->
 
 
 def parameters_function(tr: Transcription, latency_s: float, name: str) -> ca.Function:
-    """``name(x, u_prev, t) -> p``: a solve's parameters at the time ``t`` [s] from the
-    measured state ``x`` and the command in flight ``u_prev`` (``Controller.step`` with
-    ``latency_s`` [s]): the start state, then every task's references over the horizon."""
+    """``name(x, u_prev, rates, t) -> p``: a solve's parameters at the time ``t`` [s] from
+    the measured state ``x``, the command in flight ``u_prev`` and the actual rates
+    ``rates`` (``Controller.step`` with ``latency_s`` [s]; only the lagged DoFs' rates
+    count): the start state, then every task's references over the horizon."""
     nx, N, dt = tr.nx, tr.N, tr.problem.dt
     x, u_prev, t = ca.SX.sym("x", nx), ca.SX.sym("u_prev", nx), ca.SX.sym("t")
-    z0 = start_state(tr, x, u_prev, latency_s)
+    rates = ca.SX.sym("rates", nx)
+    z0 = start_state(tr, x, u_prev, rates, latency_s)
     t_plan = t + latency_s
     stage_params = []
     for k in range(N + 1):
         stage_params += [e.task.param_expression(t_plan + dt * k) for e in tr.problem.entries]
     p = ca.vertcat(z0, *stage_params)
-    return ca.Function(name, [x, u_prev, t], [p], ["x", "u_prev", "t"], ["p"])
+    return ca.Function(name, [x, u_prev, rates, t], [p], ["x", "u_prev", "rates", "t"], ["p"])
 
 
 def bounds_function(

@@ -32,6 +32,7 @@ from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
 from aeromanip.nmpc.backends.sqp.solver import LOOP_CONSTANTS, SqpBackend
 from aeromanip.nmpc.controller import Controller
 from aeromanip.nmpc.strategies import MODE, Hierarchical, Weighted
+from aeromanip.nmpc.transcription import Transcription
 
 HERE = Path(__file__).parent / "c"
 #: the generated C file of every Function (and its header)
@@ -67,11 +68,6 @@ def check_scenario(sc: Scenario) -> None:
     if sc.backend not in ("sqp", "sqp-rti"):
         raise ConfigError(
             f"controller.backend: {sc.backend!r} cannot be exported to C; 'sqp' and 'sqp-rti' can"
-        )
-    if sc.problem.model.has_response:
-        raise ConfigError(
-            "controller.response: rate lags need the measured rates, which the exported "
-            "step does not take yet; export without [controller.response]"
         )
     if sc.time_budget_s is not None:
         raise ConfigError("controller.time_budget: not exported (bound the step by max_iter)")
@@ -288,6 +284,12 @@ def _renamed(f: ca.Function, name: str) -> ca.Function:
     return ca.Function(name, args, f.call(args), f.name_in(), f.name_out())
 
 
+def _lagged_text(tr: Transcription) -> str:
+    """Which DoFs' rates lag, as the header says it."""
+    names = [tr.problem.robot.state_names[i] for i in tr.model.lagged]
+    return f"here {', '.join(names)}" if names else "none here: the rates are not used"
+
+
 def _strategy_text(ex: Exportable) -> str:
     """The strategy, as the header says it."""
     return f"strict hierarchical ({len(ex.levels)} levels)" if ex.hierarchical else "weighted"
@@ -319,6 +321,7 @@ def export_controller(req: ExportRequest, out: Path) -> list[Path]:
     values = {
         "SCENARIO": req.scenario, "VERSION": version("aeromanip"), "COMMAND": req.command,
         "STATE_NAMES": ", ".join(tr.problem.robot.state_names), "NX": str(tr.nx),
+        "LAGGED": _lagged_text(tr),
         "N": str(tr.N), "DT": repr(float(tr.problem.dt)),
         "STRATEGY": _strategy_text(ex), "LEVELS": str(len(ex.levels)),
         "BACKEND": "RTI" if ex.rti else "SQP",

@@ -3,7 +3,7 @@
  * weighted or strict hierarchical controller on the condensed model, in C
  * (aeromanip_controller.h).
  *
- *   1. the parameters from (x, u_prev, t): the generated parameters function;
+ *   1. the parameters from (x, u_prev, rates, t): the generated parameters function;
  *   2. the guess: the first level's last answer moved on (its last command repeated),
  *      or the last plan's after a failed step, or rest;
  *   3. level by level (the weighted strategy has one): the level's row bounds (a
@@ -218,12 +218,26 @@ static aeromanip_status fly(aeromanip_controller* c, int solved, aeromanip_outpu
   return solved == AM_LEVELS ? AEROMANIP_OK : AEROMANIP_PARTIAL;
 }
 
-aeromanip_status aeromanip_step(aeromanip_controller* c, const double* x, double t,
-                                aeromanip_output* out) {
+/* the solve's parameters from x, the command in flight and the actual rates (the
+   command in flight where not measured); nonzero if the generated function failed */
+static int parameters(aeromanip_controller* c, const double* x, const double* rates,
+                      double t) {
+  Fn* fn = &c->parameters;
+  fn->arg[0] = x;
+  fn->arg[1] = c->u_prev;
+  fn->arg[2] = rates ? rates : c->u_prev;
+  fn->arg[3] = &t;
+  fn->res[0] = c->p;
+  return fn->f(fn->arg, fn->res, fn->iw, fn->w, 0);
+}
+
+aeromanip_status aeromanip_step_rates(aeromanip_controller* c, const double* x,
+                                      const double* rates, double t, aeromanip_output* out) {
   if (!c || !x || !out) return AEROMANIP_BAD_INPUT;
-  if (!finite_all(x, AM_NX) || !isfinite(t)) return (out->status = AEROMANIP_BAD_INPUT);
+  if (!finite_all(x, AM_NX) || (rates && !finite_all(rates, AM_NX)) || !isfinite(t))
+    return (aeromanip_status)(out->status = AEROMANIP_BAD_INPUT);
   int status = AEROMANIP_SOLVER_MODEL_FAILED, iterations = 0, solved = 0;
-  if (!fn_call(&c->parameters, x, c->u_prev, &t, c->p, 0, 0, 0, 0)) {
+  if (!parameters(c, x, rates, t)) {
     initial_guess(c);
     for (; solved < AM_LEVELS; ++solved) {
       const double* start = solved ? c->level[solved - 1].U : c->guess;
@@ -243,4 +257,9 @@ aeromanip_status aeromanip_step(aeromanip_controller* c, const double* x, double
   if (out->status == AEROMANIP_FALLBACK || out->status == AEROMANIP_STOPPED) c->has_first = 0;
   memcpy(c->u_prev, out->u, sizeof c->u_prev);
   return (aeromanip_status)out->status;
+}
+
+aeromanip_status aeromanip_step(aeromanip_controller* c, const double* x, double t,
+                                aeromanip_output* out) {
+  return aeromanip_step_rates(c, x, 0, t, out);
 }
