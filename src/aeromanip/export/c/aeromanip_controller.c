@@ -27,12 +27,15 @@
 #include "aeromanip_config.h"
 #include "sqp_loop.h"
 
+/* C has no empty arrays: a problem without rows keeps one unused slot */
+#define AM_ROWS (AM_NC > 0 ? AM_NC : 1)
+
 /* one priority level's loop, bounds and warm state */
 typedef struct {
   Sqp* sqp;
   Fn bounds, merit;
   int nc;
-  double lbc[AM_NC], ubc[AM_NC], lam_c[AM_NC], lam_u[AM_NU], memory[AM_NC];
+  double lbc[AM_ROWS], ubc[AM_ROWS], lam_c[AM_ROWS], lam_u[AM_NU], memory[AM_ROWS];
   double U[AM_NU]; /* the level's answer (its last one while it is warm) */
   double f;        /* the objective there */
   int warm;        /* the last solve succeeded: its multipliers start the next one */
@@ -43,7 +46,7 @@ struct aeromanip_controller {
   Fn parameters, plan;
   double u_prev[AM_NX], p[AM_NP];
   double guess[AM_NU], first[AM_NU]; /* the first level's last answer */
-  double gc[AM_NC], scratch[AM_NC > AM_NU ? AM_NC : AM_NU];
+  double gc[AM_ROWS], scratch[AM_ROWS > AM_NU ? AM_ROWS : AM_NU];
   double plan_x[(AM_N + 1) * AM_NX], plan_u[AM_NU];
   int has_plan, plan_age; /* a plan flies, and for how many steps since it was solved */
   int has_first;          /* the last step solved: its first level's answer is the guess */
