@@ -273,8 +273,9 @@ int main(int argc, char** argv) {
 """
 
 
-def test_a_step_allocates_no_memory(built, tmp_path):
-    directory, sc = built["flight"]
+@pytest.mark.parametrize("name", ["flight", "hierarchical flight"])
+def test_a_step_allocates_no_memory(built, tmp_path, name):
+    directory, sc = built[name]
     src, exe = tmp_path / "count.c", tmp_path / "count"
     src.write_text(COUNTING_HARNESS)
     wrap = "-Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc"
