@@ -142,6 +142,10 @@ def exportable(ctrl: Controller) -> Exportable:
         )
     daqp, constants = settings[0]  # type: ignore[misc]
     first = backends[0]
+    for b, (d, k) in zip(backends, settings, strict=True):  # type: ignore[misc]
+        same = np.array_equal(b._loop_opts, first._loop_opts) and b.opts["rti"] == first.opts["rti"]
+        if not (same and np.array_equal(d, daqp, equal_nan=True) and np.array_equal(k, constants)):
+            raise ConfigError("controller.solver_options: the levels' solver options differ")
     return Exportable([_level(b) for b in backends], daqp, constants, first._loop_opts,
                       bool(first.opts["rti"]), strict)  # fmt: skip
 

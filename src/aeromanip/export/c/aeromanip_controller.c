@@ -171,7 +171,10 @@ static int level_bounds(aeromanip_controller* c, int i) {
    stopped if it only ran out of iterations). The solver's status. */
 static int solve_level(aeromanip_controller* c, int i, const double* start, int* iterations) {
   Level* lv = &c->level[i];
-  if (!level_bounds(c, i)) return AEROMANIP_SOLVER_MODEL_FAILED;
+  if (!level_bounds(c, i)) {
+    lv->warm = 0;
+    return AEROMANIP_SOLVER_MODEL_FAILED;
+  }
   SqpInfo info;
   int warm = lv->warm;
   int status = solve(c, i, start, warm, &info);
@@ -190,6 +193,7 @@ static int solve_level(aeromanip_controller* c, int i, const double* start, int*
    rest at the start, the state the model predicts when the command lands) */
 static aeromanip_status fall_back(aeromanip_controller* c, aeromanip_output* out) {
   out->cost = NAN;
+  out->levels = 0;
   if (c->has_plan && c->plan_age + 1 < AM_N) {
     c->plan_age += 1;
     for (int i = 0; i < AM_NX; ++i)

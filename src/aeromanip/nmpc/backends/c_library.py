@@ -82,8 +82,9 @@ def entry_of(spec: CSources, cc: str) -> CacheEntry:
     h = hashlib.sha256()
     for name in (*spec.sources, *spec.headers):
         h.update((spec.directory / name).read_bytes())
-    h.update(" ".join((ca.__version__, Path(cc).name, *spec.cflags, *spec.link,
-                       *spec.includes)).encode())  # fmt: skip
+    links = (f"link:{name}" for name in spec.link)
+    includes = (f"include:{name}" for name in spec.includes)
+    h.update(" ".join((ca.__version__, Path(cc).name, *spec.cflags, *links, *includes)).encode())
     if "-march=native" in spec.cflags:
         h.update(cpu_identity().encode())
     return CacheEntry(cache_dir() / f"{spec.name}-{h.hexdigest()[:20]}.so")

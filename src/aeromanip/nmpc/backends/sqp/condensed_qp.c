@@ -135,6 +135,10 @@ QpOutcome qp_solve(Sqp* s, const double* H, const double* g, const double* A,
                           double* lam_x) {
   int nc = s->nc, n = s->nU;
   QpOutcome out;
+  if (H != s->factor_of) { /* the kept factor is of the Hessian last passed here */
+    s->factor_valid = 0;
+    s->factor_of = H;
+  }
   for (int i = 0; i < nc; ++i) {
     double slack = -lba[i] < uba[i] ? -lba[i] : uba[i];
     s->near[i] = s->always[i] || memory[i] != 0.0 || slack < s->screen;

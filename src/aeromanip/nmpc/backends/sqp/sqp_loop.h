@@ -45,9 +45,11 @@ typedef struct {
   /* DAQP's workspace and its LDP's buffers, allocated once for nU variables and nc rows */
   DAQPWorkspace work;
   double *w_scaling, *w_M, *w_dupper, *w_dlower, *w_Rinv, *w_v, *w_R;
-  /* the inverse factor of the Hessian H (packed, before DAQP scales it), kept while H is
-     the QP's: the screened QP's rounds and the second-order correction reuse it */
+  /* the inverse factor of the Hessian (packed, before DAQP scales it), kept while the
+     QP's Hessian is unchanged (hessian() invalidates it): the screened QP's rounds and
+     the second-order correction reuse it */
   double* factor;
+  const double* factor_of; /* the Hessian buffer it is the factor of */
   int factor_valid;
   int* w_sense;
 } Sqp;
