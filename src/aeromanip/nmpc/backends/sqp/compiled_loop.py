@@ -35,9 +35,16 @@ HERE = Path(__file__).parent
 #: DAQP 0.5.1's sources (MIT; the sources of CasADi's ``libdaqpstat.a``), in ``HERE``
 THIRD_PARTY = "third_party"
 DAQP = Path(THIRD_PARTY) / "daqp"
-#: the loop's C sources (compiled together) and headers
-SOURCES = ("condensed_loop.c", "condensed_qp.c", "dense_linalg.c", "model_fn.c")
-HEADERS = ("sqp_loop.h", "dense_linalg.h", "model_fn.h")
+#: the loop's C sources (compiled together; ``controller_step.c``: a whole controller
+#: step around the loop, the exported controller's and the Python controller's) and headers
+SOURCES = (
+    "condensed_loop.c",
+    "condensed_qp.c",
+    "dense_linalg.c",
+    "model_fn.c",
+    "controller_step.c",
+)
+HEADERS = ("sqp_loop.h", "dense_linalg.h", "model_fn.h", "controller_step.h")
 DAQP_SOURCES = tuple(str(DAQP / "src" / f"{name}.c") for name in (
     "api", "auxiliary", "bnb", "daqp", "daqp_prox", "factorization", "utils"))  # fmt: skip
 DAQP_HEADERS = tuple(str(DAQP / "include" / "daqp" / f"{name}.h") for name in (
