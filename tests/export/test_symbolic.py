@@ -9,7 +9,7 @@ import pytest
 
 from aeromanip.experiment.closed_loop import make_controller
 from aeromanip.experiment.scenario import load_scenarios
-from aeromanip.export.symbolic import (
+from aeromanip.nmpc.backends.sqp.step_functions import (
     bounds_function,
     ee_function,
     parameters_function,

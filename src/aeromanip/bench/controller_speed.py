@@ -17,7 +17,8 @@ of their applied commands from it.
   bounded by the optimum plus a tolerance);
   ``constrained``: weighted, with a reference 25x faster so that velocity bounds bind;
   ``rti``: weighted, one SQP iteration per step; ``*-python-loop``: the SQP's loop in
-  Python instead of compiled C (``compiled_loop``). Each with the ``sqp`` backend and, as
+  Python instead of compiled C (``compiled_loop``); ``*-python-step``: the step in
+  Python around the compiled loop (``compiled_step``). Each with the ``sqp`` backend and, as
   the reference answer, with IPOPT warm-started and converged tightly (``-ipopt``,
   ``tol = 1e-10``: at its default tolerance IPOPT's own answer moves by ~3e-4 rad/s).
 * ``contact``: the ``contact-wall`` problem (its ``cog`` variant: the force task with its
@@ -46,6 +47,7 @@ from aeromanip.nmpc.transcription import Transcription
 
 FAST = 25.0  # reference speed-up of the constrained variant: velocity bounds bind
 PYTHON_LOOP = {"compiled_loop": False}  # the SQP's loop in Python
+PYTHON_STEP = {"compiled_step": False}  # the step in Python around the compiled loop
 
 
 # name: (scenario kind, strategy ("stagewise": hierarchical, mode "stagewise"), backend,
@@ -65,6 +67,10 @@ VARIANTS: dict[str, tuple[str, str, str, dict | None, str | None]] = {
     "weighted-python-loop": ("flight", "weighted", "sqp", PYTHON_LOOP, "weighted"),
     "rti-python-loop": ("flight", "weighted", "sqp-rti", PYTHON_LOOP, "rti"),
     "hierarchical-python-loop": ("flight", "hierarchical", "sqp", PYTHON_LOOP, "hierarchical"),
+    # the step in Python around the compiled loop (where the whole step is compiled)
+    "weighted-python-step": ("flight", "weighted", "sqp", PYTHON_STEP, "weighted"),
+    "rti-python-step": ("flight", "weighted", "sqp-rti", PYTHON_STEP, "rti"),
+    "hierarchical-python-step": ("flight", "hierarchical", "sqp", PYTHON_STEP, "hierarchical"),
     # contact inspection (contact-wall, cog): the force and surface tasks, the approach bound
     "contact-ipopt": ("contact", "weighted", "ipopt", REF_OPTIONS, None),
     "contact": ("contact", "weighted", "sqp", None, "contact-ipopt"),

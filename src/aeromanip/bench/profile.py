@@ -1,12 +1,14 @@
 """Where a controller step's time goes: compiled code, the QP solver, Python and NumPy.
 
-The bench's closed loop (``bench.controller_speed``: the flight problem, ideal inner loop) is run
-for one variant with every ``Buffered`` Function call timed by its name: the QP solver
-(DAQP or HPIPM through CasADi), the compiled SQP loop (the whole solve in C: its model
-calls and QPs are inside it), the model's compiled Functions (linearisation, merit,
-Hessian, multipliers, logged costs), and the IPOPT solve that seeds the SQP on a cold
-start (the first step). The rest of the step is Python and NumPy (the SQP
-loop, the QP's row screening, reference sampling, bounds, warm start). A second pass under
+The bench's closed loop (``bench.controller_speed``: the flight problem, ideal inner
+loop) is run for one variant with every ``Buffered`` Function call timed by its name:
+the QP solver (DAQP or HPIPM through CasADi), the compiled controller step (the whole
+step in C: parameters, bounds, every level's SQP loop, plan), the compiled SQP loop (the
+whole solve in C where the step is Python's: its model calls and QPs are inside it),
+the model's compiled Functions (linearisation, merit, Hessian, multipliers, logged
+costs), and the IPOPT solve that seeds the SQP on a cold start (the first step). The
+rest of the step is Python and NumPy (input checks, reports; where the step is Python's:
+the SQP loop, the QP's row screening, reference sampling, bounds, warm start). A second pass under
 ``cProfile`` names the Python functions that take most of that rest (their own time,
 profiler overhead included, as shares).
 """
@@ -28,6 +30,7 @@ from aeromanip.nmpc.backends import codegen
 from aeromanip.nmpc.backends.codegen import limit_blas_threads
 from aeromanip.nmpc.backends.nlpsol import NlpBackend
 from aeromanip.nmpc.backends.sqp.compiled_loop import CompiledLoop
+from aeromanip.nmpc.backends.sqp.compiled_step import CompiledStep
 
 PROFILED = ("weighted", "rti", "hierarchical")  # the variants `aeromanip bench profile` runs
 # part of a Function's name -> category (first match; the rest is "other compiled")
@@ -38,12 +41,14 @@ CATEGORIES = (
     ("hess", "model: exact Hessian"),
     ("lagw", "model: multipliers"),
     ("stage_costs", "logged stage costs"),
+    ("aeromanip_step_c", "logged stage costs"),
     ("aeromanip_sqp_data", "model: linearisation"),
     ("aeromanip_ms_", "model: linearisation"),
 )
 PYTHON = "Python and NumPy"
 SEED = "IPOPT seed (cold start, Python included)"
 COMPILED_LOOP = "compiled SQP loop (model, DAQP, line search: C)"
+COMPILED_STEP = "compiled step (parameters, bounds, every level's SQP loop, plan: C)"
 TOP_PYTHON = 8  # Python functions listed per variant
 
 
@@ -67,12 +72,14 @@ def _timed(method: Callable, acc: dict[str, float], category: str) -> Callable:
 @contextlib.contextmanager
 def timed_functions(acc: dict[str, float]) -> Iterator[None]:
     """While inside, every new ``Buffered`` adds its run time [s] to ``acc[category]``,
-    every ``NlpBackend`` solve (the SQP's IPOPT seed) to ``acc[SEED]``, and every call
-    of the compiled SQP loop to ``acc[COMPILED_LOOP]``."""
-    original, nlp_solve, loop_solve = (
+    every ``NlpBackend`` solve (the SQP's IPOPT seed) to ``acc[SEED]``, every call of
+    the compiled SQP loop to ``acc[COMPILED_LOOP]`` and of the compiled controller step
+    to ``acc[COMPILED_STEP]``."""
+    original, nlp_solve, loop_solve, step_run = (
         codegen.Buffered.__init__,
         NlpBackend.solve,
         CompiledLoop.solve,
+        CompiledStep.run,
     )
 
     def init(self: codegen.Buffered, f: Any) -> None:
@@ -82,12 +89,14 @@ def timed_functions(acc: dict[str, float]) -> Iterator[None]:
     codegen.Buffered.__init__ = init  # type: ignore[method-assign]
     NlpBackend.solve = _timed(nlp_solve, acc, SEED)  # type: ignore[method-assign]
     CompiledLoop.solve = _timed(loop_solve, acc, COMPILED_LOOP)  # type: ignore[method-assign]
+    CompiledStep.run = _timed(step_run, acc, COMPILED_STEP)  # type: ignore[method-assign]
     try:
         yield
     finally:
         codegen.Buffered.__init__ = original  # type: ignore[method-assign]
         NlpBackend.solve = nlp_solve  # type: ignore[method-assign]
         CompiledLoop.solve = loop_solve  # type: ignore[method-assign]
+        CompiledStep.run = step_run  # type: ignore[method-assign]
 
 
 def _loop(sc: Any, step: Any) -> list[float]:

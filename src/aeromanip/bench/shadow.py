@@ -45,11 +45,13 @@ class IpoptShadow:
     def before(self, x: np.ndarray, t: float) -> tuple[np.ndarray, list]:
         """The NLP's parameters and the controller's initial guesses, before its step."""
         c = self.ctrl
+        c.sync_memory()
         p = self.stage.tr.parameters(x, c.u_prev, c.problem.stage_params(t))
         return p, c.initial_guesses(x)
 
     def after(self, p: np.ndarray, guesses: list, cmd: Command) -> None:
         """Solve with IPOPT and record the differences (commands [rad/s, m/s], costs)."""
+        self.ctrl.sync_memory()  # the answer's multipliers, from a compiled step
         tr, ans = self.stage.tr, self.stage.warm
         if ans is None or not ans.success:
             return
@@ -114,6 +116,7 @@ class IpoptHierarchyShadow:
     def before(self, x: np.ndarray, t: float) -> tuple[np.ndarray, list]:
         """The parameters and the controller's initial guesses, before its step."""
         c = self.ctrl
+        c.sync_memory()
         tr = c.strategy.transcription
         return tr.parameters(x, c.u_prev, c.problem.stage_params(t)), c.initial_guesses(x)
 

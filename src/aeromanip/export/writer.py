@@ -1,9 +1,10 @@
 """``aeromanip export``: a scenario's controller as a self-contained C library.
 
 The directory written holds the generated model (CasADi's C of the SQP's Functions and
-of ``symbolic``'s), the compiled SQP loop's sources with DAQP's (``nmpc/backends/sqp``;
-DAQP's MIT license kept), the controller's step (``c/aeromanip_controller.c``),
-its header, a closed-loop example and a Makefile: a C compiler is all it needs.
+of ``nmpc.backends.sqp.step_functions``), the compiled SQP loop's and the controller
+step's sources with DAQP's (``nmpc/backends/sqp``; DAQP's MIT license kept), the public
+API over the step (``c/aeromanip_controller.c``) with its header and generated
+configuration, a closed-loop example and a Makefile: a C compiler is all it needs.
 
 What can be exported: the weighted strategy or the strict hierarchy (every level a loop
 of its own, each lower level's rows pinned to the higher levels' answers) on the ``sqp``
@@ -25,13 +26,10 @@ import numpy as np
 
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.scenario import Scenario
-from aeromanip.export import symbolic
-from aeromanip.nmpc.backends.sqp import compiled_loop
-from aeromanip.nmpc.backends.sqp.compiled_loop import loop_settings
-from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
-from aeromanip.nmpc.backends.sqp.solver import LOOP_CONSTANTS, SqpBackend
+from aeromanip.nmpc.backends.sqp import compiled_loop, step_functions
+from aeromanip.nmpc.backends.sqp.compiled_step import LevelParts, StepParts, step_parts
 from aeromanip.nmpc.controller import Controller
-from aeromanip.nmpc.strategies import MODE, Hierarchical, Weighted
+from aeromanip.nmpc.strategies import MODE
 from aeromanip.nmpc.transcription import Transcription
 
 HERE = Path(__file__).parent / "c"
@@ -80,74 +78,10 @@ def check_scenario(sc: Scenario) -> None:
         e.task.param_expression(t)
 
 
-@dataclass(frozen=True)
-class ExportedLevel:
-    """One priority level (the weighted strategy: its only one) as the export writes it."""
-
-    backend: SqpBackend
-    model: CondensedQpModel
-    lbg: np.ndarray  # the level's NLP row bounds, rows no decision moves left free
-    ubg: np.ndarray
-    pins: np.ndarray  # (n, 2): the condensed row pinned, the higher level it is pinned to
-
-
-@dataclass(frozen=True)
-class Exportable:
-    """The parts of a controller the export writes out."""
-
-    levels: list[ExportedLevel]
-    daqp: np.ndarray  # the loop's DAQP settings (``compiled_loop.DAQP_SETTINGS``)
-    constants: np.ndarray  # the loop's constants (``compiled_loop.CONSTANTS``)
-    loop_opts: np.ndarray  # the loop's options (``SqpBackend._loop_opts``)
-    rti: bool
-    hierarchical: bool
-
-
-def _level(backend: SqpBackend) -> ExportedLevel:
-    """A level's model, its row bounds and the rows the higher levels' answers pin
-    (``Hierarchical._bounds`` in ``strict`` mode: a higher level's residual rows held at
-    their values there, the rows no decision moves left free)."""
-    model, tr = backend.model, backend.tr
-    lbg, ubg = tr.lbg.copy(), tr.ubg.copy()
-    row_of = {r: i for i, r in enumerate(model.keep)}
-    pins = []
-    for j, rows in enumerate(tr.hier_rows):
-        for r in rows:
-            if tr.g_movable[r]:
-                pins.append((row_of[r], j))
-            else:
-                lbg[r], ubg[r] = -np.inf, np.inf
-    return ExportedLevel(backend, model, lbg, ubg, np.array(pins, dtype=int).reshape(-1, 2))
-
-
-def exportable(ctrl: Controller) -> Exportable:
+def exportable(ctrl: Controller) -> StepParts:
     """What of ``ctrl``'s levels the export writes, or a ``ConfigError`` naming what
     keeps it from being exported."""
-    strategy = ctrl.strategy
-    backends = [st.backend for st in strategy.solvers]
-    strict = isinstance(strategy, Hierarchical) and strategy.mode == "strict"
-    if not (isinstance(strategy, Weighted) or strict) or not all(
-        isinstance(b, SqpBackend) for b in backends
-    ):
-        raise ConfigError(
-            "controller: only the weighted or strict hierarchical 'sqp' or 'sqp-rti' can be "
-            "exported"
-        )
-    settings = [loop_settings(b.model, b.opts, LOOP_CONSTANTS) for b in backends]
-    if any(s is None for s in settings):
-        raise ConfigError(
-            "controller.solver_options: the exported loop solves the condensed QP with DAQP "
-            "(qpsol = 'daqp', or 'auto' up to condense_max_horizon steps, and DAQP options "
-            "it knows)"
-        )
-    daqp, constants = settings[0]  # type: ignore[misc]
-    first = backends[0]
-    for b, (d, k) in zip(backends, settings, strict=True):  # type: ignore[misc]
-        same = np.array_equal(b._loop_opts, first._loop_opts) and b.opts["rti"] == first.opts["rti"]
-        if not (same and np.array_equal(d, daqp, equal_nan=True) and np.array_equal(k, constants)):
-            raise ConfigError("controller.solver_options: the levels' solver options differ")
-    return Exportable([_level(b) for b in backends], daqp, constants, first._loop_opts,
-                      bool(first.opts["rti"]), strict)  # fmt: skip
+    return step_parts(ctrl.strategy)
 
 
 def _c_array(ctype: str, name: str, values: np.ndarray) -> str:
@@ -178,7 +112,7 @@ def _declare(name: str) -> str:
     )
 
 
-def _level_arrays(i: int, lv: ExportedLevel) -> str:
+def _level_arrays(i: int, lv: LevelParts) -> str:
     """Level ``i``'s constant arrays."""
     m, qp = lv.model, lv.model.qp
     dims = np.array([m.nU, m.nc, m.nr, m.nh, m.tr.p.numel()])
@@ -192,7 +126,7 @@ def _level_arrays(i: int, lv: ExportedLevel) -> str:
     )  # fmt: skip
 
 
-def _level_entry(i: int, lv: ExportedLevel, names: list[str]) -> str:
+def _level_entry(i: int, lv: LevelParts, names: list[str]) -> str:
     """Level ``i``'s row of ``am_levels``; ``names``: its data, merit, hess (or ""),
     bounds Functions."""
     qp = lv.model.qp
@@ -205,7 +139,7 @@ def _level_entry(i: int, lv: ExportedLevel, names: list[str]) -> str:
     )
 
 
-def _config(ex: Exportable, names: dict[str, str], level_names: list[list[str]]) -> str:
+def _config(ex: StepParts, names: dict[str, str], level_names: list[list[str]]) -> str:
     """``aeromanip_config.h``: the scenario's controller (``am_config``, an ``AmConfig``
     of ``controller_step.h``), its constants and the Functions it calls."""
     first = ex.levels[0].model
@@ -237,21 +171,21 @@ def _config(ex: Exportable, names: dict[str, str], level_names: list[list[str]])
         "};\n\nstatic const AmConfig am_config = {\n"
         f"  {sizes}, am_levels, am_daqp, am_constants, am_opts, am_shift_vars,\n"
         "  am_lbU, am_ubU, am_u_lower, am_u_upper,\n"
-        f"  {par}, {plan}, {par}_work, {plan}_work}};\n"
+        f"  {par}, {plan}, {par}_work, {plan}_work, 0, 0.0, 0.0}};\n"
     )
     return text + "\n#endif\n"
 
 
 def _functions(
-    ex: Exportable, ctrl: Controller
+    ex: StepParts, ctrl: Controller
 ) -> tuple[list[ca.Function], dict[str, str], list[list[str]]]:
     """Every Function the export generates; the step's names for its own (parameters,
     plan) and each level's data, merit, exact Hessian ("" if none) and bounds."""
     tr = ex.levels[0].model.tr
-    parameters = symbolic.parameters_function(tr, ctrl.latency_s, "aeromanip_parameters")
-    plan = symbolic.plan_function(tr, "aeromanip_plan")
-    fs = [parameters, plan, symbolic.ee_function(tr, "aeromanip_ee"),
-          symbolic.reference_function(tr, "aeromanip_reference")]  # fmt: skip
+    parameters = step_functions.parameters_function(tr, ctrl.latency_s, "aeromanip_parameters")
+    plan = step_functions.plan_function(tr, "aeromanip_plan")
+    fs = [parameters, plan, step_functions.ee_function(tr, "aeromanip_ee"),
+          step_functions.reference_function(tr, "aeromanip_reference")]  # fmt: skip
     names = {"parameters": parameters.name(), "plan": plan.name()}
     level_names = []
     for i, lv in enumerate(ex.levels):
@@ -259,7 +193,8 @@ def _functions(
         own = [_renamed(m.sources[0], f"aeromanip_data_{i}"),
                _renamed(m.sources[1], f"aeromanip_merit_{i}"),
                _renamed(m.sources[4], f"aeromanip_hessian_{i}") if len(m.sources) > 4 else None,
-               symbolic.bounds_function(m, lv.lbg, lv.ubg, f"aeromanip_bounds_{i}")]  # fmt: skip
+               step_functions.bounds_function(m, lv.lbg, lv.ubg,
+                                              f"aeromanip_bounds_{i}")]  # fmt: skip
         fs += [f for f in own if f is not None]
         level_names.append([f.name() if f is not None else "" for f in own])
     return fs, names, level_names
@@ -278,7 +213,7 @@ def _lagged_text(tr: Transcription) -> str:
     return f"here {', '.join(names)}" if names else "none here: the rates are not used"
 
 
-def _strategy_text(ex: Exportable) -> str:
+def _strategy_text(ex: StepParts) -> str:
     """The strategy, as the header says it."""
     return f"strict hierarchical ({len(ex.levels)} levels)" if ex.hierarchical else "weighted"
 

@@ -14,49 +14,19 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from aeromanip.errors import ConfigError, StateError
+from aeromanip.nmpc.command import Command
+from aeromanip.nmpc.compiled_controller import StepInC
 from aeromanip.nmpc.problem import Problem
-from aeromanip.nmpc.strategies import STRATEGIES, LevelReport, Strategy, StrategyResult
+from aeromanip.nmpc.strategies import STRATEGIES, Strategy, StrategyResult
 
 log = logging.getLogger(__name__)
 
 STATUSES = ("ok", "partial", "fallback", "stopped")
-
-
-@dataclass
-class Command:
-    """What the controller decided at one step.
-
-    Attributes:
-        u: command to apply now, ``dx/dt`` [m/s, rad/s] (nx,).
-        plan_x: predicted states (N+1, nx); plan_u: predicted commands (N, nx).
-        task_costs: weighted cost of each task over the horizon.
-        status: ``ok``; ``partial`` (a lower hierarchy level failed, the higher levels'
-            solution is applied); ``fallback`` (the previous plan is applied); ``stopped``.
-        message: why, when not ``ok``.
-        iterations, solve_time_s: solver effort (all levels).
-        levels: per-level reports (hierarchical) or one report (weighted).
-        force_ff: the thrust the flight controller should add [N, world] (tasks that use
-            the measured contact force: ``Task.force_feedforward``); ``None``: none.
-        observations: what the tasks logged this step (``Task.observations``).
-    """
-
-    u: np.ndarray
-    plan_x: np.ndarray
-    plan_u: np.ndarray
-    task_costs: dict[str, float]
-    status: str
-    message: str
-    iterations: int
-    solve_time_s: float
-    levels: list[LevelReport] = field(default_factory=list)
-    force_ff: np.ndarray | None = None
-    observations: dict[str, float] = field(default_factory=dict)
 
 
 class Controller:
@@ -95,7 +65,20 @@ class Controller:
         self.strategy: Strategy = cls.build(problem, backend, solver_options, hierarchy or {})
         self.time_budget_s = time_budget_s
         self.nx = problem.kin.nx
+        self._in_c: StepInC | None = None
         self.reset()
+        self._in_c = StepInC.for_controller(self)
+
+    @property
+    def compiled_step(self) -> bool:
+        """Whether the step runs in one compiled call (``nmpc.compiled_controller``)."""
+        return self._in_c is not None
+
+    def sync_memory(self) -> None:
+        """Bring the Python path's memory (the plan, each level's warm start) up to date
+        with the compiled step's, e.g. before reading ``initial_guesses``."""
+        if self._in_c is not None and self._in_c.last_in_c:
+            self._in_c.to_python()
 
     def reset(self, u_prev: np.ndarray | None = None) -> None:
         """Forget plans and warm starts; ``u_prev`` is the command applied so far (default 0)."""
@@ -107,6 +90,9 @@ class Controller:
         self._before: tuple[np.ndarray, Any, list[np.ndarray]] | None = None
         self.strategy.reset()
         self.problem.reset_tasks()
+        if self._in_c is not None:
+            self._in_c.step_c.reset(self.u_prev)
+            self._in_c.last_in_c = False
 
     def _vector(self, v: Any, what: str) -> np.ndarray:
         """``v`` as nx finite floats, or a ``StateError`` naming what is wrong."""
@@ -173,12 +159,25 @@ class Controller:
         correct the NMPC's untilted kinematics with it; ``None``: not measured.
         """
         x_meas = self._vector(state, "state")
-        self._before = (self.u_prev.copy(), self._plan, self._level_w)
         if isinstance(t, bool) or not isinstance(t, int | float | np.number) or not np.isfinite(t):
             raise StateError(f"t: must be a finite number of seconds, got {t!r}")
         r0 = None if rates is None else self._vector(rates, "rates")
         tilt = None if attitude is None else tuple(float(a) for a in attitude)
-        self.problem.observe(x_meas, self._wrench(wrench), t, tilt)  # type: ignore[arg-type]
+        wrench = self._wrench(wrench)
+        if self._in_c is None:
+            self.problem.observe(x_meas, wrench, t, tilt)  # type: ignore[arg-type]
+            return self._python_step(x_meas, t, r0)
+        cmd = self._in_c.step(x_meas, t, r0)  # no task of it measures (``compilable``)
+        if cmd is not None:
+            return cmd
+        self.sync_memory()  # the step is Python's (a seed): the memory comes from C
+        cmd = self._python_step(x_meas, t, r0)
+        self._in_c.from_python()
+        return cmd
+
+    def _python_step(self, x_meas: np.ndarray, t: float, r0: np.ndarray | None) -> Command:
+        """The step in Python (``step``'s inputs checked)."""
+        self._before = (self.u_prev.copy(), self._plan, self._level_w)
         x0 = self._start(x_meas, r0)
         tr = self.strategy.transcription
         t_plan = t + self.latency_s
@@ -232,6 +231,15 @@ class Controller:
         the previous plan flies on, one step older, and its command for now is taken as
         the command in flight (for the control-rate cost, the command-rate bounds, the
         latency prediction and the fallback)."""
+        if self._in_c is not None and self._in_c.last_in_c:
+            self._in_c.step_c.discard()
+            self.u_prev = self._in_c.step_c.u_prev.copy()
+            return
+        self._python_discard()
+        if self._in_c is not None:
+            self._in_c.from_python()
+
+    def _python_discard(self) -> None:
         if self._before is None:
             return
         u_prev, plan, self._level_w = self._before

@@ -2,7 +2,9 @@
 
 Truth: the Python loop (``SqpBackend._python_sqp``, itself tested against IPOPT) on
 the same problems, step by step in closed loop; NumPy's LAPACK ``eigh`` for the C
-eigensolver that convexifies indefinite Hessians.
+eigensolver that convexifies indefinite Hessians. The step around the loop runs in Python
+here (``compiled_step = false``); the whole step compiled is
+``tests/nmpc/test_compiled_controller.py``'s.
 """
 
 import ctypes
@@ -35,7 +37,9 @@ def _codegen_on(monkeypatch):
 def closed_loop(kind, strategy, backend, compiled):
     """The commands and statuses of ``STEPS`` steps of the ideal loop."""
     sc = bench_scenario(kind, STEPS * 0.5)
-    ctrl, step = _stepper(sc, strategy, backend, {"compiled_loop": compiled})
+    ctrl, step = _stepper(
+        sc, strategy, backend, {"compiled_loop": compiled, "compiled_step": False}
+    )
     loops = [getattr(ls.backend, "loop", None) for ls in ctrl.strategy.solvers]
     assert all((lp is not None) == compiled for lp in loops)
     x, us, oks, its = sc.x0.copy(), [], [], []
@@ -136,7 +140,12 @@ def test_a_failing_solve_ends_as_in_the_python_loop():
     for compiled in (False, True):
         sc = bench_scenario("fast", 2.0)
         qp = {"daqp": {"iter_limit": 2}}
-        opts = {"compiled_loop": compiled, "seed": "none", "qpsol_options": qp}
+        opts = {
+            "compiled_loop": compiled,
+            "compiled_step": False,
+            "seed": "none",
+            "qpsol_options": qp,
+        }
         ctrl = Controller(sc.problem, "weighted", "sqp", opts)
         assert (ctrl.strategy.solvers[0].backend.loop is not None) == compiled
         x, rows = sc.x0.copy(), []
@@ -155,7 +164,8 @@ def _restarts_at_a_solution(compiled):
     """Iterations of a warm and of a cold solve, both started at the first step's
     solution (the warm one with its multipliers, the cold one without any)."""
     sc = bench_scenario("flight", 1.0)
-    ctrl = Controller(sc.problem, "weighted", "sqp", {"compiled_loop": compiled, "seed": "none"})
+    opts = {"compiled_loop": compiled, "compiled_step": False, "seed": "none"}
+    ctrl = Controller(sc.problem, "weighted", "sqp", opts)
     backend = ctrl.strategy.solvers[0].backend
     assert (backend.loop is not None) == compiled
     requests, solve = [], backend.solve

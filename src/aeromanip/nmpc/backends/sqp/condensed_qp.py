@@ -25,6 +25,20 @@ from aeromanip.nmpc.backends.sqp.qp_model import Linearization
 from aeromanip.nmpc.transcription import Transcription, shift_map
 
 
+def condensed_variables(tr: Transcription, U: ca.SX, p: ca.SX) -> ca.SX:
+    """The NLP's variables as expressions of the commands ``U`` and the parameters ``p``
+    (the model is linear: the states are affine in ``U``)."""
+    N, nx = tr.N, tr.nx
+    z, parts = p[: tr.nz], []
+    for k in range(N + 1):
+        parts.append(z)
+        if k < N:
+            uk = U[k * nx : (k + 1) * nx]
+            parts.append(uk)
+            z = tr.model.next_sx(z, uk)
+    return ca.vertcat(*parts)
+
+
 class CondensedQpModel:
     """The condensed QP model of a transcription (module docstring; ``qp_model.QpModel``).
 
@@ -49,14 +63,7 @@ class CondensedQpModel:
         rows, then the state bounds as rows of ``U``) and the hierarchy rows' residuals
         ``Rh``, as expressions of ``U``. Sets the index maps between layouts."""
         tr, N, nx = self.tr, self.tr.N, self.tr.nx
-        z, parts = p[: tr.nz], []
-        for k in range(N + 1):  # the model is linear: the states are affine in U
-            parts.append(z)
-            if k < N:
-                uk = U[k * nx : (k + 1) * nx]
-                parts.append(uk)
-                z = tr.model.next_sx(z, uk)
-        wU = ca.vertcat(*parts)
+        wU = condensed_variables(tr, U, p)
         hier = [r for _, r in tr.hier_residuals]
         ms = ca.Function("ms", [tr.w, tr.p], [tr.residuals, tr.g, ca.vertcat(*hier)])
         # dense: a zero weight makes a residual entry a structural zero, and the buffers

@@ -21,23 +21,40 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "sqp_loop.h"
+
+enum { ST_HOST = 100 }; /* host_seeds: the solve is the host's to take */
 
 typedef struct {
   AmLevelState s;
   Sqp* sqp;
   Fn bounds, merit;
+  /* its warm state before the step (host_seeds: restored when the step is the host's) */
+  double *U0, *lam_c0, *lam_u0, *memory0, f0;
+  int warm0;
 } Level;
 
 struct AmController {
   const AmConfig* cfg;
   AmState s;
+  AmState before; /* the memory before the last step (am_discard) */
+  int has_before;
   Level* level;
   Fn parameters, plan;
   double *guess, *gc, *scratch;
   double opts[9];
 };
+
+/* a clock for the levels' times [s] (0 where C11's timespec_get is missing) */
+static double seconds(void) {
+#ifdef TIME_UTC
+  struct timespec ts;
+  if (timespec_get(&ts, TIME_UTC)) return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+#endif
+  return 0.0;
+}
 
 static double* zeros(int n) { return calloc((size_t)(n > 0 ? n : 1), sizeof(double)); }
 
@@ -49,7 +66,9 @@ static int level_new(Level* lv, const AmConfig* cfg, const AmLevel* l) {
   AmLevelState* s = &lv->s;
   s->U = zeros(nU), s->lam_u = zeros(nU);
   s->lam_c = zeros(nc), s->memory = zeros(nc), s->lbc = zeros(nc), s->ubc = zeros(nc);
-  int ok = lv->sqp && s->U && s->lam_u && s->lam_c && s->memory && s->lbc && s->ubc;
+  lv->U0 = zeros(nU), lv->lam_u0 = zeros(nU), lv->lam_c0 = zeros(nc), lv->memory0 = zeros(nc);
+  int ok = lv->sqp && s->U && s->lam_u && s->lam_c && s->memory && s->lbc && s->ubc &&
+           lv->U0 && lv->lam_u0 && lv->lam_c0 && lv->memory0;
   ok = fn_new(&lv->bounds, l->bounds, l->bounds_work) && ok;
   return fn_new(&lv->merit, l->merit, l->merit_work) && ok;
 }
@@ -60,6 +79,45 @@ static void level_free(Level* lv) {
   fn_free(&lv->merit);
   AmLevelState* s = &lv->s;
   free(s->U), free(s->lam_u), free(s->lam_c), free(s->memory), free(s->lbc), free(s->ubc);
+  free(lv->U0), free(lv->lam_u0), free(lv->lam_c0), free(lv->memory0);
+}
+
+/* level i's warm state kept (keep) or put back (!keep) */
+static void level_backup(AmController* c, int i, int keep) {
+  Level* lv = &c->level[i];
+  size_t nU = sizeof(double) * (size_t)c->cfg->nU;
+  size_t nc = sizeof(double) * (size_t)c->cfg->levels[i].dims[1];
+  AmLevelState* s = &lv->s;
+  if (keep) {
+    memcpy(lv->U0, s->U, nU), memcpy(lv->lam_u0, s->lam_u, nU);
+    memcpy(lv->lam_c0, s->lam_c, nc), memcpy(lv->memory0, s->memory, nc);
+    lv->f0 = s->f, lv->warm0 = s->warm;
+  } else {
+    memcpy(s->U, lv->U0, nU), memcpy(s->lam_u, lv->lam_u0, nU);
+    memcpy(s->lam_c, lv->lam_c0, nc), memcpy(s->memory, lv->memory0, nc);
+    s->f = lv->f0, s->warm = lv->warm0;
+  }
+}
+
+static int state_new(AmState* s, const AmConfig* cfg) {
+  int nx = cfg->nx, N = cfg->N;
+  s->u_prev = zeros(nx), s->p = zeros(cfg->np), s->first = zeros(cfg->nU);
+  s->plan_x = zeros((N + 1) * nx), s->plan_u = zeros(N * nx);
+  return s->u_prev && s->p && s->first && s->plan_x && s->plan_u;
+}
+
+static void state_free(AmState* s) {
+  free(s->u_prev), free(s->p), free(s->first), free(s->plan_x), free(s->plan_u);
+}
+
+/* the memory between steps copied (the parameters are not: they are the step's) */
+static void state_copy(AmState* to, const AmState* from, const AmConfig* cfg) {
+  size_t nx = (size_t)cfg->nx, N = (size_t)cfg->N;
+  memcpy(to->u_prev, from->u_prev, sizeof(double) * nx);
+  memcpy(to->first, from->first, sizeof(double) * (size_t)cfg->nU);
+  memcpy(to->plan_x, from->plan_x, sizeof(double) * (N + 1) * nx);
+  memcpy(to->plan_u, from->plan_u, sizeof(double) * N * nx);
+  to->has_plan = from->has_plan, to->plan_age = from->plan_age, to->has_first = from->has_first;
 }
 
 static int largest_rows(const AmConfig* cfg) {
@@ -74,14 +132,12 @@ AmController* am_new(const AmConfig* cfg) {
   if (!c) return 0;
   c->cfg = cfg;
   c->level = calloc((size_t)cfg->n_levels, sizeof *c->level);
-  int nx = cfg->nx, N = cfg->N, nc = largest_rows(cfg);
-  AmState* s = &c->s;
-  s->u_prev = zeros(nx), s->p = zeros(cfg->np), s->first = zeros(cfg->nU);
-  s->plan_x = zeros((N + 1) * nx), s->plan_u = zeros(N * nx);
+  int nc = largest_rows(cfg);
   c->guess = zeros(cfg->nU), c->gc = zeros(nc);
   c->scratch = zeros(nc > cfg->nU ? nc : cfg->nU);
-  int ok = c->level && s->u_prev && s->p && s->first && s->plan_x && s->plan_u && c->guess &&
-           c->gc && c->scratch;
+  int ok = state_new(&c->s, cfg);
+  ok = state_new(&c->before, cfg) && ok;
+  ok = c->level && c->guess && c->gc && c->scratch && ok;
   ok = fn_new(&c->parameters, cfg->parameters, cfg->parameters_work) && ok;
   ok = fn_new(&c->plan, cfg->plan, cfg->plan_work) && ok;
   for (int i = 0; ok && i < cfg->n_levels; ++i)
@@ -102,8 +158,8 @@ void am_free(AmController* c) {
   free(c->level);
   fn_free(&c->parameters);
   fn_free(&c->plan);
-  AmState* s = &c->s;
-  free(s->u_prev), free(s->p), free(s->first), free(s->plan_x), free(s->plan_u);
+  state_free(&c->s);
+  state_free(&c->before);
   free(c->guess), free(c->gc), free(c->scratch);
   free(c);
 }
@@ -113,7 +169,23 @@ void am_reset(AmController* c, const double* u_prev) {
   c->s.has_plan = 0;
   c->s.plan_age = 0;
   c->s.has_first = 0;
+  c->has_before = 0;
   for (int i = 0; i < c->cfg->n_levels; ++i) c->level[i].s.warm = 0;
+}
+
+void am_discard(AmController* c) {
+  if (!c || !c->has_before) return;
+  c->has_before = 0;
+  AmState* s = &c->s;
+  state_copy(s, &c->before, c->cfg);
+  int nx = c->cfg->nx;
+  if (s->has_plan && s->plan_age + 1 < c->cfg->N) {
+    s->plan_age += 1;
+    memcpy(s->u_prev, s->plan_u + s->plan_age * nx, sizeof(double) * (size_t)nx);
+  } else { /* no plan flies: none of its answers is a guess either */
+    s->has_plan = 0;
+    s->has_first = 0;
+  }
 }
 
 AmState* am_state(AmController* c) { return &c->s; }
@@ -135,7 +207,7 @@ static void initial_guess(AmController* c) {
   const AmState* s = &c->s;
   int nx = c->cfg->nx, N = c->cfg->N;
   const double* from_u = s->has_first ? s->first : (s->has_plan ? s->plan_u : 0);
-  int steps = s->has_first ? 1 : 1 + s->plan_age;
+  int steps = 1 + s->plan_age; /* the plan's age: steps it flew since it was solved */
   for (int k = 0; k < N; ++k) {
     int from = k + steps < N ? k + steps : N - 1;
     for (int i = 0; i < nx; ++i) c->guess[k * nx + i] = from_u ? from_u[from * nx + i] : 0.0;
@@ -194,26 +266,44 @@ static int level_bounds(AmController* c, int i) {
   return 1;
 }
 
+/* whether the level's warm answer costs so much more than its last one that the host
+   seeds it again (SqpBackend.solve) */
+static int reseed(const AmController* c, double f, double promise) {
+  const AmConfig* cfg = c->cfg;
+  return cfg->host_seeds && cfg->opts[5] == 0.0 && f > cfg->seed_ratio * promise + cfg->seed_floor;
+}
+
 /* level i solved from `start`; a warm solve that fails is retried cold (from where it
-   stopped if it only ran out of iterations). The solver's status. */
+   stopped if it only ran out of iterations). The solver's status, or ST_HOST where the
+   host seeds (a cold solve, a costly answer). */
 static int solve_level(AmController* c, int i, const double* start) {
   AmLevelState* s = &c->level[i].s;
+  double t0 = seconds();
   s->iterations = 0;
+  s->qp_exitflag = 0, s->qp_finite = 1, s->qp_excess = 0.0;
+  if (c->cfg->host_seeds && !s->warm) return ST_HOST;
   if (!level_bounds(c, i)) {
     s->warm = 0;
+    s->seconds = seconds() - t0;
     return s->status = ST_MODEL_FAILED;
   }
   SqpInfo info;
   int warm = s->warm;
+  double promise = s->f;
   int status = solve(c, i, start, warm, &info);
   s->iterations += info.iterations;
   if (!succeeded(c, status, s->U) && warm) { /* stale multipliers can mislead: retry cold */
+    if (c->cfg->host_seeds) return ST_HOST;
     int go_on = status == ST_MAX_ITER && finite_all(s->U, c->cfg->nU);
     status = solve(c, i, go_on ? s->U : start, 0, &info);
     s->iterations += info.iterations;
   }
   s->f = info.f;
   s->warm = succeeded(c, status, s->U);
+  if (s->warm && warm && reseed(c, info.f, promise)) return ST_HOST;
+  s->qp_exitflag = info.qp_exitflag, s->qp_finite = info.qp_finite;
+  s->qp_excess = info.qp_excess;
+  s->seconds = seconds() - t0;
   return s->status = status;
 }
 
@@ -271,22 +361,37 @@ static int parameters(AmController* c, const double* x, const double* rates, dou
   return fn->f(fn->arg, fn->res, fn->iw, fn->w, 0);
 }
 
+/* the levels solved in turn from the guess, until one fails; the last one's status (or
+   ST_HOST); *solved: how many succeeded */
+static int solve_levels(AmController* c, int* solved, int* iterations) {
+  int status = ST_MODEL_FAILED, n = c->cfg->n_levels;
+  initial_guess(c);
+  for (*solved = 0; *solved < n; ++*solved) {
+    int i = *solved;
+    const double* start = i ? c->level[i - 1].s.U : c->guess;
+    if (c->cfg->host_seeds) level_backup(c, i, 1);
+    status = solve_level(c, i, start);
+    if (status == ST_HOST) {
+      for (int j = 0; j <= i; ++j) level_backup(c, j, 0);
+      return ST_HOST;
+    }
+    *iterations += c->level[i].s.iterations;
+    if (!succeeded(c, status, c->level[i].s.U)) break;
+  }
+  return status;
+}
+
 int am_step(AmController* c, const double* x, const double* rates, double t, AmOutput* out) {
   if (!c || !x || !out) return AM_BAD_INPUT;
   const AmConfig* cfg = c->cfg;
   if (!finite_all(x, cfg->nx) || (rates && !finite_all(rates, cfg->nx)) || !isfinite(t))
     return out->status = AM_BAD_INPUT;
   int status = ST_MODEL_FAILED, iterations = 0, solved = 0;
-  for (int i = 0; i < cfg->n_levels; ++i) c->level[i].s.status = 0;
-  if (!parameters(c, x, rates, t)) {
-    initial_guess(c);
-    for (; solved < cfg->n_levels; ++solved) {
-      const double* start = solved ? c->level[solved - 1].s.U : c->guess;
-      status = solve_level(c, solved, start);
-      iterations += c->level[solved].s.iterations;
-      if (!succeeded(c, status, c->level[solved].s.U)) break;
-    }
-  }
+  for (int i = 0; i < cfg->n_levels; ++i) c->level[i].s.status = 0, c->level[i].s.seconds = 0;
+  if (!parameters(c, x, rates, t)) status = solve_levels(c, &solved, &iterations);
+  if (status == ST_HOST) return out->status = AM_HOST;
+  state_copy(&c->before, &c->s, cfg);
+  c->has_before = 1;
   out->solver_status = status;
   out->iterations = iterations;
   out->levels = solved;

@@ -37,10 +37,16 @@ typedef struct {
   const double *u_lower, *u_upper; /* nx: the command's bounds (the fallback's clip) */
   casadi_fn parameters, plan;
   casadi_work_fn parameters_work, plan_work;
+  /* a host that seeds cold solves itself (Python's IPOPT seed) sets host_seeds: a step
+     that would solve a level cold, or whose warm answer costs more than seed_ratio
+     times the level's last one plus seed_floor (not in RTI), is undone (AM_HOST) */
+  int host_seeds;
+  double seed_ratio, seed_floor;
 } AmConfig;
 
 /* a step's outcome (the numbers of aeromanip_status in an export's header) */
-enum { AM_OK = 0, AM_FALLBACK = 1, AM_STOPPED = 2, AM_BAD_INPUT = 3, AM_PARTIAL = 4 };
+enum { AM_OK = 0, AM_FALLBACK = 1, AM_STOPPED = 2, AM_BAD_INPUT = 3, AM_PARTIAL = 4,
+       AM_HOST = 5 /* host_seeds: the step is the host's to take; nothing changed */ };
 
 /* one level's warm state and its last solve, readable and writable by the caller
    (Python keeps NumPy views of the arrays) */
@@ -51,6 +57,9 @@ typedef struct {
   int warm;        /* the last solve succeeded: its multipliers start the next one */
   int status;      /* the last solve's (the loop's codes), 0 if not reached */
   int iterations;  /* its QPs, a cold retry's included */
+  double seconds;  /* its time [s] */
+  int qp_exitflag, qp_finite; /* of a QP that failed: DAQP's flag, its answer finite? */
+  double qp_excess;           /* how far that answer crossed its bounds */
 } AmLevelState;
 
 /* the controller's memory between steps */
@@ -77,6 +86,10 @@ void am_reset(AmController* c, const double* u_prev);
 /* one step from the measured state x at the time t [s] (rates: the measured actual
    rates, NULL: the command in flight); allocates nothing */
 int am_step(AmController* c, const double* x, const double* rates, double t, AmOutput* out);
+/* forget the last step's command and plan (it came too late to fly): the previous plan
+   flies on, a step older, its command for now taken as the command in flight
+   (Controller.discard); nothing if no step since the last discard or reset */
+void am_discard(AmController* c);
 AmState* am_state(AmController* c);
 AmLevelState* am_level_state(AmController* c, int i);
 

@@ -98,6 +98,10 @@ DEFAULTS: dict[str, Any] = {
     # compiled; ``compiled_loop``), and a real-time iteration on the sparse model with the
     # Riccati solver (``sparse_rti``): same answers, a fraction of the time
     "compiled_loop": True,
+    # with the compiled loop: the whole controller step in one compiled call where it
+    # applies (the weighted or strict hierarchical strategy on the condensed model with
+    # DAQP, no time budget; ``nmpc.compiled_controller``): same answers
+    "compiled_step": True,
     # "gauss-newton", "exact" (made positive definite), or "auto": Gauss-Newton,
     # exact from the first shortened step or the 7th iteration of a solve on
     "hessian": "auto",
@@ -157,6 +161,7 @@ OPTION_CHECKS: dict[str, Callable[[Any], str]] = {
     "rti": lambda v: "" if isinstance(v, bool) else "true or false",
     "codegen": lambda v: "" if isinstance(v, bool) else "true or false",
     "compiled_loop": lambda v: "" if isinstance(v, bool) else "true or false",
+    "compiled_step": lambda v: "" if isinstance(v, bool) else "true or false",
     "hessian": _one_of(HESSIANS),
     "regularization": _number(positive=False),
     "qpsol": _one_of(("auto", *QP_SOLVERS, *SPARSE_QP_SOLVERS)),

@@ -6,7 +6,8 @@ the state box, braking into the margin, widened to hold a recovery plan) with Nu
 exported controller computes the same in generated C: ``parameters_function`` states
 the parameters as expressions of ``(x, u_prev, rates, t)``, ``bounds_function`` a level's row
 bounds as expressions of the parameters, ``plan_function`` rolls a plan out, and
-``ee_function`` gives the end effector's position (the example's error). The tests
+``ee_function`` gives the end effector's position (the example's error), and
+``costs_function`` every task's cost at a plan (the compiled step's reports). The tests
 check each against its NumPy twin.
 """
 
@@ -17,7 +18,7 @@ import math
 import casadi as ca
 import numpy as np
 
-from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
+from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel, condensed_variables
 from aeromanip.nmpc.model import RateModel, _response_terms
 from aeromanip.nmpc.transcription import Transcription
 
@@ -170,3 +171,13 @@ def reference_function(tr: Transcription, name: str) -> ca.Function:
     t = ca.SX.sym("t")
     refs = [e.task.param_expression(t) for e in tr.problem.entries if e.name == "tracking"]
     return ca.Function(name, [t], [refs[0] if refs else ca.SX.zeros(3)], ["t"], ["r"])
+
+
+def costs_function(model: CondensedQpModel, name: str) -> ca.Function:
+    """``name(U, p) -> C``: every task's weighted cost over the horizon (``stage_costs``
+    summed over the stages: ``Transcription.costs``) at the commands ``U`` from the start
+    in ``p``."""
+    tr = model.tr
+    U, p = ca.SX.sym("U", model.nU), ca.SX.sym("p", tr.p.numel())
+    C = model.sources[2](condensed_variables(tr, U, p), p)  # stage_costs, as generated
+    return ca.Function(name, [U, p], [ca.sum2(C)], ["U", "p"], ["C"])
