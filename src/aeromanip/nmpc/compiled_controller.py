@@ -22,11 +22,14 @@ import numpy as np
 
 from aeromanip.nmpc.backends.base import NlpResult
 from aeromanip.nmpc.backends.sqp.compiled_step import CompiledStep, compilable
+from aeromanip.nmpc.backends.sqp.solver import SOLVED as LOOP_SOLVED
 from aeromanip.nmpc.command import Command
 from aeromanip.nmpc.strategies import Hierarchical, LevelReport
 
 log = logging.getLogger(__name__)
 SOLVED = ("ok", "partial")
+#: the loop's status words of a successful solve (``SqpBackend``): the RTI's included
+SOLVER_SOLVED = (*LOOP_SOLVED, "RTI step")
 
 
 class StepInC:
@@ -164,6 +167,24 @@ class StepInC:
             solver.warm = NlpResult(w, lam_g, lam_x, ls.f, True, "Solve_Succeeded", 0, 0.0)
             backend._promise = ls.f
 
+    def hand_over(self) -> None:
+        """The solves of the step the C controller left to Python, for the Python path
+        to take instead of solving again (``SqpBackend.precomputed``)."""
+        sc, p = self.step_c, self.step_c.p
+        for i, (solver, model, (ls, arrays)) in enumerate(
+            zip(self.ctrl.strategy.solvers, self.models, sc.levels, strict=True)
+        ):
+            t = ls.tried
+            if not t.valid:
+                continue
+            U = arrays["tried_U"].copy()
+            w, lam_g, lam_x = model.result(U, p.copy(), arrays["tried_lam_c"].copy(),
+                                           arrays["tried_lam_u"].copy())  # fmt: skip
+            word = sc.level_status(i, tried=True)
+            ok = word in SOLVER_SOLVED and bool(np.all(np.isfinite(w)))
+            res = NlpResult(w, lam_g, lam_x, t.f, ok, word, t.iterations, t.seconds)
+            solver.backend.precomputed = (res, arrays["tried_memory"].copy())
+
     @staticmethod
     def _zero_multipliers(model: object) -> tuple[np.ndarray, np.ndarray]:
         return np.zeros(model.nc), np.zeros(model.nU)  # type: ignore[attr-defined]
@@ -173,6 +194,8 @@ class StepInC:
         ctrl, sc = self.ctrl, self.step_c
         st = sc.state
         self.last_in_c = False
+        for solver in ctrl.strategy.solvers:  # a solve handed over and not taken
+            solver.backend.precomputed = None
         sc.u_prev[:] = ctrl.u_prev
         st.has_plan = int(ctrl._plan is not None)
         if ctrl._plan is not None:

@@ -171,6 +171,7 @@ class Controller:
         if cmd is not None:
             return cmd
         self.sync_memory()  # the step is Python's (a seed): the memory comes from C
+        self._in_c.hand_over()  # with the solves C made in it
         cmd = self._python_step(x_meas, t, r0)
         self._in_c.from_python()
         return cmd

@@ -63,6 +63,17 @@ class AmConfig(ctypes.Structure):
     ]  # fmt: skip
 
 
+class AmTried(ctypes.Structure):
+    """``AmTried`` of ``controller_step.h``."""
+
+    _fields_ = [
+        ("U", _doubles), ("lam_c", _doubles), ("lam_u", _doubles), ("memory", _doubles),
+        ("f", ctypes.c_double), ("seconds", ctypes.c_double), ("qp_excess", ctypes.c_double),
+        ("status", ctypes.c_int), ("iterations", ctypes.c_int),
+        ("qp_exitflag", ctypes.c_int), ("qp_finite", ctypes.c_int), ("valid", ctypes.c_int),
+    ]  # fmt: skip
+
+
 class AmLevelState(ctypes.Structure):
     """``AmLevelState`` of ``controller_step.h``."""
 
@@ -71,7 +82,7 @@ class AmLevelState(ctypes.Structure):
         ("lbc", _doubles), ("ubc", _doubles), ("f", ctypes.c_double), ("warm", ctypes.c_int),
         ("status", ctypes.c_int), ("iterations", ctypes.c_int), ("seconds", ctypes.c_double),
         ("qp_exitflag", ctypes.c_int), ("qp_finite", ctypes.c_int),
-        ("qp_excess", ctypes.c_double),
+        ("qp_excess", ctypes.c_double), ("tried", AmTried),
     ]  # fmt: skip
 
 
@@ -342,7 +353,11 @@ class CompiledStep:
             nc = lv.model.nc
             arrays = {"U": view(ls.U, (nU,)), "lam_c": view(ls.lam_c, (nc,)),
                       "lam_u": view(ls.lam_u, (nU,)), "memory": view(ls.memory, (nc,)),
-                      "lbc": view(ls.lbc, (nc,)), "ubc": view(ls.ubc, (nc,))}  # fmt: skip
+                      "lbc": view(ls.lbc, (nc,)), "ubc": view(ls.ubc, (nc,)),
+                      "tried_U": view(ls.tried.U, (nU,)),
+                      "tried_lam_c": view(ls.tried.lam_c, (nc,)),
+                      "tried_lam_u": view(ls.tried.lam_u, (nU,)),
+                      "tried_memory": view(ls.tried.memory, (nc,))}  # fmt: skip
             self.levels.append((ls, arrays))
         self.u, self.out_x, self.out_u = np.zeros(nx), np.zeros((N + 1, nx)), np.zeros((N, nx))
         bufs = (a.ctypes.data_as(_doubles) for a in (self.u, self.out_x, self.out_u))
@@ -365,12 +380,14 @@ class CompiledStep:
         """``am_discard`` (``Controller.discard``)."""
         self.lib.am_discard(self.handle)
 
-    def level_status(self, i: int) -> str:
-        """Level ``i``'s last solve as the Python loop words it (``SqpBackend``)."""
+    def level_status(self, i: int, tried: bool = False) -> str:
+        """Level ``i``'s last solve (``tried``: its solve in the last step left to the
+        host) as the Python loop words it (``SqpBackend``)."""
         ls = self.levels[i][0]
-        word = STATUS.get(ls.status, f"unknown status {ls.status}")
+        st = ls.tried if tried else ls
+        word = STATUS.get(st.status, f"unknown status {st.status}")
         if word == "QP failed":
-            flag = ls.qp_exitflag
-            why = failure_text("daqp", flag, flag == 1, bool(ls.qp_finite), ls.qp_excess)
+            flag = st.qp_exitflag
+            why = failure_text("daqp", flag, flag == 1, bool(st.qp_finite), st.qp_excess)
             word = f"QP failed: {why}"
         return word

@@ -67,8 +67,11 @@ static int level_new(Level* lv, const AmConfig* cfg, const AmLevel* l) {
   s->U = zeros(nU), s->lam_u = zeros(nU);
   s->lam_c = zeros(nc), s->memory = zeros(nc), s->lbc = zeros(nc), s->ubc = zeros(nc);
   lv->U0 = zeros(nU), lv->lam_u0 = zeros(nU), lv->lam_c0 = zeros(nc), lv->memory0 = zeros(nc);
+  AmTried* t = &s->tried;
+  t->U = zeros(nU), t->lam_u = zeros(nU), t->lam_c = zeros(nc), t->memory = zeros(nc);
   int ok = lv->sqp && s->U && s->lam_u && s->lam_c && s->memory && s->lbc && s->ubc &&
-           lv->U0 && lv->lam_u0 && lv->lam_c0 && lv->memory0;
+           lv->U0 && lv->lam_u0 && lv->lam_c0 && lv->memory0 && t->U && t->lam_u &&
+           t->lam_c && t->memory;
   ok = fn_new(&lv->bounds, l->bounds, l->bounds_work) && ok;
   return fn_new(&lv->merit, l->merit, l->merit_work) && ok;
 }
@@ -80,6 +83,22 @@ static void level_free(Level* lv) {
   AmLevelState* s = &lv->s;
   free(s->U), free(s->lam_u), free(s->lam_c), free(s->memory), free(s->lbc), free(s->ubc);
   free(lv->U0), free(lv->lam_u0), free(lv->lam_c0), free(lv->memory0);
+  AmTried* t = &s->tried;
+  free(t->U), free(t->lam_u), free(t->lam_c), free(t->memory);
+}
+
+/* level i's solve in this step kept for the host (the step is left to it) */
+static void level_tried(AmController* c, int i) {
+  AmLevelState* s = &c->level[i].s;
+  AmTried* t = &s->tried;
+  size_t nU = sizeof(double) * (size_t)c->cfg->nU;
+  size_t nc = sizeof(double) * (size_t)c->cfg->levels[i].dims[1];
+  memcpy(t->U, s->U, nU), memcpy(t->lam_u, s->lam_u, nU);
+  memcpy(t->lam_c, s->lam_c, nc), memcpy(t->memory, s->memory, nc);
+  t->f = s->f, t->seconds = s->seconds, t->qp_excess = s->qp_excess;
+  t->status = s->status, t->iterations = s->iterations;
+  t->qp_exitflag = s->qp_exitflag, t->qp_finite = s->qp_finite;
+  t->valid = 1;
 }
 
 /* level i's warm state kept (keep) or put back (!keep) */
@@ -275,7 +294,8 @@ static int reseed(const AmController* c, double f, double promise) {
 
 /* level i solved from `start`; a warm solve that fails is retried cold (from where it
    stopped if it only ran out of iterations). The solver's status, or ST_HOST where the
-   host seeds (a cold solve, a costly answer). */
+   host seeds: before any solve (a cold one), or after it (a warm solve that failed, a
+   costly answer; the solve is then kept in `tried`). */
 static int solve_level(AmController* c, int i, const double* start) {
   AmLevelState* s = &c->level[i].s;
   double t0 = seconds();
@@ -288,23 +308,30 @@ static int solve_level(AmController* c, int i, const double* start) {
     return s->status = ST_MODEL_FAILED;
   }
   SqpInfo info;
-  int warm = s->warm;
+  int warm = s->warm, host = 0;
   double promise = s->f;
   int status = solve(c, i, start, warm, &info);
   s->iterations += info.iterations;
   if (!succeeded(c, status, s->U) && warm) { /* stale multipliers can mislead: retry cold */
-    if (c->cfg->host_seeds) return ST_HOST;
-    int go_on = status == ST_MAX_ITER && finite_all(s->U, c->cfg->nU);
-    status = solve(c, i, go_on ? s->U : start, 0, &info);
-    s->iterations += info.iterations;
+    if (c->cfg->host_seeds) {
+      host = 1;
+    } else {
+      int go_on = status == ST_MAX_ITER && finite_all(s->U, c->cfg->nU);
+      status = solve(c, i, go_on ? s->U : start, 0, &info);
+      s->iterations += info.iterations;
+    }
   }
   s->f = info.f;
   s->warm = succeeded(c, status, s->U);
-  if (s->warm && warm && reseed(c, info.f, promise)) return ST_HOST;
   s->qp_exitflag = info.qp_exitflag, s->qp_finite = info.qp_finite;
   s->qp_excess = info.qp_excess;
   s->seconds = seconds() - t0;
-  return s->status = status;
+  s->status = status;
+  if (host || (s->warm && warm && reseed(c, info.f, promise))) {
+    level_tried(c, i);
+    return ST_HOST;
+  }
+  return status;
 }
 
 /* on failure: the last plan's next command (clipped to the bounds), or stop (the plan:
@@ -371,7 +398,8 @@ static int solve_levels(AmController* c, int* solved, int* iterations) {
     const double* start = i ? c->level[i - 1].s.U : c->guess;
     if (c->cfg->host_seeds) level_backup(c, i, 1);
     status = solve_level(c, i, start);
-    if (status == ST_HOST) {
+    if (status == ST_HOST) { /* the levels above: solved, kept for the host too */
+      for (int j = 0; j < i; ++j) level_tried(c, j);
       for (int j = 0; j <= i; ++j) level_backup(c, j, 0);
       return ST_HOST;
     }
@@ -387,7 +415,10 @@ int am_step(AmController* c, const double* x, const double* rates, double t, AmO
   if (!finite_all(x, cfg->nx) || (rates && !finite_all(rates, cfg->nx)) || !isfinite(t))
     return out->status = AM_BAD_INPUT;
   int status = ST_MODEL_FAILED, iterations = 0, solved = 0;
-  for (int i = 0; i < cfg->n_levels; ++i) c->level[i].s.status = 0, c->level[i].s.seconds = 0;
+  for (int i = 0; i < cfg->n_levels; ++i) {
+    AmLevelState* s = &c->level[i].s;
+    s->status = 0, s->seconds = 0.0, s->tried.valid = 0;
+  }
   if (!parameters(c, x, rates, t)) status = solve_levels(c, &solved, &iterations);
   if (status == ST_HOST) return out->status = AM_HOST;
   state_copy(&c->before, &c->s, cfg);

@@ -48,6 +48,15 @@ typedef struct {
 enum { AM_OK = 0, AM_FALLBACK = 1, AM_STOPPED = 2, AM_BAD_INPUT = 3, AM_PARTIAL = 4,
        AM_HOST = 5 /* host_seeds: the step is the host's to take; nothing changed */ };
 
+/* a level's solve in a step left to the host (AM_HOST), kept for the host to take
+   instead of solving again (the step itself is undone) */
+typedef struct {
+  double *U, *lam_c, *lam_u, *memory; /* the answer, its multipliers and active rows */
+  double f, seconds, qp_excess;
+  int status, iterations, qp_exitflag, qp_finite;
+  int valid; /* the level was solved in that step */
+} AmTried;
+
 /* one level's warm state and its last solve, readable and writable by the caller
    (Python keeps NumPy views of the arrays) */
 typedef struct {
@@ -60,6 +69,7 @@ typedef struct {
   double seconds;  /* its time [s] */
   int qp_exitflag, qp_finite; /* of a QP that failed: DAQP's flag, its answer finite? */
   double qp_excess;           /* how far that answer crossed its bounds */
+  AmTried tried;              /* its solve in the last step left to the host */
 } AmLevelState;
 
 /* the controller's memory between steps */

@@ -233,6 +233,10 @@ class SqpBackend(Backend):
         if self.opts["blas_threads"] is not None:  # every OpenBLAS loaded by now
             limit_blas_threads(int(self.opts["blas_threads"]))
         self._ipopt: Backend | None = None  # the seed, built on first use
+        #: the next warm solve's answer, already computed (by the compiled controller
+        #: step, which left the step to Python: ``nmpc.compiled_controller``), with the
+        #: QP's memory of active rows after it; taken once instead of solving again
+        self.precomputed: tuple[NlpResult, np.ndarray] | None = None
         self._promise: float | None = None  # the last answer's cost
         self.seeds = 0  # IPOPT seeds so far
 
@@ -289,10 +293,11 @@ class SqpBackend(Backend):
         moved a stage on here (``shift=False``: this step's); seeded by IPOPT on a cold
         start (no multipliers) or an answer far above the last one's cost (``seed``)."""
         seeded = self.opts["seed"] != "none"
+        precomputed, self.precomputed = self.precomputed, None
         if seeded and request.cold:
             res = self._seeded(request)
         else:
-            res = self._sqp(request)
+            res = self._sqp(request) if precomputed is None else self._taken(precomputed)
             promise = self._promise
             if (
                 seeded
@@ -302,6 +307,12 @@ class SqpBackend(Backend):
             ):
                 res = _cheaper(res, self._seeded(request))
         self._promise = res.f if res.success else None
+        return res
+
+    def _taken(self, precomputed: tuple[NlpResult, np.ndarray]) -> NlpResult:
+        """The precomputed answer (``precomputed``), the QP's memory set as after it."""
+        res, memory = precomputed
+        self.model.qp.lam_a[:] = memory  # type: ignore[attr-defined]
         return res
 
     def _seeded(self, request: SolveRequest) -> NlpResult:
