@@ -93,6 +93,7 @@ class Exported:
                                                   ctypes.c_void_p, ctypes.c_double,
                                                   ctypes.POINTER(Output)]  # fmt: skip
         self.lib.aeromanip_free.argtypes = [ctypes.c_void_p]
+        self.lib.aeromanip_discard.argtypes = [ctypes.c_void_p]
         self.handle = self.lib.aeromanip_init()
         assert self.handle
         self.out = Output()
@@ -105,6 +106,9 @@ class Exported:
         return self.lib.aeromanip_step_rates(self.handle, x.ctypes.data, r.ctypes.data, t,
                                              ctypes.byref(self.out))  # fmt: skip
 
+    def discard(self) -> None:
+        self.lib.aeromanip_discard(self.handle)
+
     def close(self) -> None:
         self.lib.aeromanip_free(self.handle)
 
@@ -113,12 +117,19 @@ STATUS = {0: "ok", 1: "fallback", 2: "stopped", 4: "partial"}
 
 
 def _lockstep(
-    directory: Path, sc, steps: int, noise: float, jump_s: float = 0.0, lags: bool = False
+    directory: Path,
+    sc,
+    steps: int,
+    noise: float,
+    jump_s: float = 0.0,
+    lags: bool = False,
+    discards: bool = False,
 ) -> dict:
     """Fly the Python controller on its kinematic model (the state disturbed by
     ``noise`` [m, rad] per step, the clock jumping ``jump_s`` ahead every 10 steps; with
     ``lags`` the rates follow the commands through the model's first-order lags and are
-    measured) and hand each state to the C controller too; the statuses seen."""
+    measured; with ``discards`` every 7th command, twice, is discarded as too late by
+    both) and hand each state to the C controller too; the statuses seen."""
     ctrl = make_controller(sc)
     c = Exported(directory, ctrl.nx, sc.problem.horizon)
     rng = np.random.default_rng(11)
@@ -140,9 +151,15 @@ def _lockstep(
                 np.array(c.out.plan_x).reshape(-1, ctrl.nx), cmd.plan_x, rtol=0, atol=1e-8
             )
             seen[cmd.status] = seen.get(cmd.status, 0) + 1
+            if discards and k % 7 == 3:
+                for _ in range(2):
+                    ctrl.discard()
+                    c.discard()
+                seen["discarded"] = seen.get("discarded", 0) + 1
+            u = ctrl.u_prev  # what flies: the command, or after discards the old plan's
             if lags:
-                rates = cmd.u + lag * (rates - cmd.u) + rng.normal(0.0, noise, x.size)
-            x = x + dt * (cmd.u if rates is None else rates) + rng.normal(0.0, noise, x.size)
+                rates = u + lag * (rates - u) + rng.normal(0.0, noise, x.size)
+            x = x + dt * (u if rates is None else rates) + rng.normal(0.0, noise, x.size)
     finally:
         c.close()
     return seen
@@ -182,6 +199,12 @@ def test_rate_lags_start_from_the_measured_rates_as_in_python(built):
     directory, sc = built["rate lags"]
     assert sc.problem.model.has_response and sc.latency_s > 0
     assert _lockstep(directory, sc, 60, 0.002, lags=True) == {"ok": 60}
+
+
+def test_discarded_commands_let_the_last_plan_fly_on_as_in_python(built):
+    directory, sc = built["hierarchical flight, 4 iterations"]
+    seen = _lockstep(directory, sc, 60, 0.003, jump_s=5.0, discards=True)
+    assert seen["discarded"] >= 8 and seen["ok"] > 10 and seen["fallback"] > 2
 
 
 def test_a_state_that_is_not_finite_is_refused_and_changes_nothing(built):

@@ -17,6 +17,8 @@ void aeromanip_reset(aeromanip_controller* c, const double* u_prev) {
   am_reset((AmController*)c, u_prev);
 }
 
+void aeromanip_discard(aeromanip_controller* c) { am_discard((AmController*)c); }
+
 aeromanip_status aeromanip_step_rates(aeromanip_controller* c, const double* x,
                                       const double* rates, double t, aeromanip_output* out) {
   if (!c || !x || !out) return AEROMANIP_BAD_INPUT;
