@@ -55,7 +55,7 @@ DAQP_INCLUDES = (str(DAQP / "include"), str(DAQP / "include" / "daqp"))
 CONSTANTS = (
     "screen_rounds", "cross_tol", "exact_from_iteration", "armijo", "backtrack", "min_step",
     "damping_start", "damping_growth", "penalty_margin", "penalty_floor",
-    "convexify_decades", "eigen_floor",
+    "convexify_decades", "eigen_floor", "max_soc", "kappa_soc",
 )  # fmt: skip
 #: DAQP settings the loop passes on, in ``sqp_new``'s order (NaN: DAQP's default)
 DAQP_SETTINGS = (

@@ -75,31 +75,41 @@ static int verdict(Sqp* s, const Problem* pb, const double* U, const double* lam
   return it >= pb->max_iter ? ST_MAX_ITER : 0;
 }
 
-/* the second-order correction of the step s->qd (condensed_qp.py: correction): the last
-   QP with its rows taken at U + d; accepted (1) if its step passes the merit test, and
+/* second-order corrections of the step s->qd (condensed_qp.py: correction; solver.py:
+   _line_search): the last QP with its rows taken at the end of the last step tried (their
+   values there in s->trial_c, viol1 their violation), up to max_soc in a row while each
+   cuts the violation by kappa_soc; accepted (1) if a step passes the merit test, and
    then it is in s->sd with its multipliers in lam_c, lam_u */
 static int corrected(Sqp* s, const Problem* pb, const double* U, double* memory,
-                     double mu, double phi0, double descent, double* lam_c, double* lam_u,
-                     int* failed) {
+                     double mu, double phi0, double descent, double viol1, double* lam_c,
+                     double* lam_u, int* failed) {
   int n = s->nU, nc = s->nc;
-  la_matvec(s->A, nc, n, s->qd, s->Ad);
-  for (int i = 0; i < nc; ++i) {
-    double cc = s->trial_c[i] - s->Ad[i];
-    s->lba[i] = pb->lbc[i] - cc;
-    s->uba[i] = pb->ubc[i] - cc;
+  const double* step = s->qd;
+  for (int k = 0; k < (int)s->k.max_soc; ++k) {
+    la_matvec(s->A, nc, n, step, s->Ad); /* before the QP writes s->sd */
+    for (int i = 0; i < nc; ++i) {
+      double cc = s->trial_c[i] - s->Ad[i];
+      s->lba[i] = pb->lbc[i] - cc;
+      s->uba[i] = pb->ubc[i] - cc;
+    }
+    QpOutcome soc = qp_solve(s, s->H, s->grad, s->A, s->lba, s->uba, s->lbx, s->ubx, memory,
+                             s->sd, s->slam_a, s->slam_x);
+    double fs, vs;
+    if (!soc.ok) return 0;
+    if (merit(s, U, s->sd, pb->p, pb->lbc, pb->ubc, &fs, &vs)) {
+      *failed = 1;
+      return 0;
+    }
+    if (fs + mu * vs <= phi0 + s->k.armijo * descent) {
+      memcpy(lam_c, s->slam_a, sizeof(double) * nc);
+      memcpy(lam_u, s->slam_x, sizeof(double) * n);
+      return 1;
+    }
+    if (vs > s->k.kappa_soc * viol1) return 0;
+    viol1 = vs;
+    step = s->sd;
   }
-  QpOutcome soc = qp_solve(s, s->H, s->grad, s->A, s->lba, s->uba, s->lbx, s->ubx, memory,
-                           s->sd, s->slam_a, s->slam_x);
-  double fs, vs;
-  if (!soc.ok) return 0;
-  if (merit(s, U, s->sd, pb->p, pb->lbc, pb->ubc, &fs, &vs)) {
-    *failed = 1;
-    return 0;
-  }
-  if (!(fs + mu * vs <= phi0 + s->k.armijo * descent)) return 0;
-  memcpy(lam_c, s->slam_a, sizeof(double) * nc);
-  memcpy(lam_u, s->slam_x, sizeof(double) * n);
-  return 1;
+  return 0;
 }
 
 /* Armijo backtracking on the l1 merit f + mu * violations (solver.py: _line_search):
@@ -115,7 +125,7 @@ static double line_search(Sqp* s, const Problem* pb, const double* U, double f, 
   if (merit(s, U, s->qd, pb->p, pb->lbc, pb->ubc, &f1, &viol1)) return 0.0;
   if (f1 + mu * viol1 <= phi0 + s->k.armijo * descent) return 1.0;
   if (viol1 > viol0) {
-    if (corrected(s, pb, U, memory, mu, phi0, descent, lam_c, lam_u, &failed)) {
+    if (corrected(s, pb, U, memory, mu, phi0, descent, viol1, lam_c, lam_u, &failed)) {
       *d = s->sd;
       return 1.0;
     }
@@ -250,8 +260,9 @@ Sqp* sqp_new(const int* dims, const int* hier_row, const unsigned char* always,
   if (!s) return 0;
   s->nU = dims[0], s->nc = dims[1], s->nr = dims[2], s->nh = dims[3], s->np = dims[4];
   s->has_hess = hess != 0;
-  s->k = (Constants){consts[0], consts[1], consts[2], consts[3], consts[4],  consts[5],
-                     consts[6], consts[7], consts[8], consts[9], consts[10], consts[11]};
+  s->k = (Constants){consts[0], consts[1], consts[2], consts[3],  consts[4],  consts[5],
+                     consts[6], consts[7], consts[8], consts[9], consts[10], consts[11],
+                     consts[12], consts[13]};
   int ok = fn_new(&s->data, data, data_work) && fn_new(&s->merit, merit_fn, merit_work);
   if (s->has_hess) ok = ok && fn_new(&s->hess, hess, hess_work);
   size_t n = (size_t)s->nU, nc = (size_t)s->nc, nr = (size_t)s->nr, nh = (size_t)s->nh;

@@ -22,6 +22,7 @@ typedef struct {
   double screen_rounds, cross_tol, exact_from_iteration, armijo, backtrack, min_step;
   double damping_start, damping_growth, penalty_margin, penalty_floor;
   double convexify_decades, eigen_floor;
+  double max_soc, kappa_soc;
 } Constants;
 
 typedef struct {
