@@ -4,8 +4,8 @@
  * The same algorithm, step for step, as the Python loop of aeromanip's SQP
  * (nmpc/backends/sqp/solver.py with condensed_qp.py, dense_qp.py, convexify.py and
  * optimality.py): Gauss-Newton or exact (convexified) Hessians, DAQP on the rows that
- * may bind (screened, as dense_qp.py does), an l1 merit with Armijo backtracking and a
- * second-order correction, Levenberg-Marquardt damping, KKT and acceptable-level stops,
+ * may bind (screened, as dense_qp.py does), an l1 merit with Armijo backtracking and
+ * second-order corrections, Levenberg-Marquardt damping, KKT and acceptable-level stops,
  * real-time iterations. The model's Functions (residuals, rows and their Jacobians; the
  * merit; the exact Hessian of the Lagrangian) are CasADi-generated C, called through the
  * pointers given to sqp_new. Every buffer is allocated once by sqp_new; DAQP allocates
@@ -114,7 +114,7 @@ static int corrected(Sqp* s, const Problem* pb, const double* U, double* memory,
 
 /* Armijo backtracking on the l1 merit f + mu * violations (solver.py: _line_search):
    the step length (0 if the model failed); *d becomes the corrected step if the full
-   step was accepted only with the second-order correction */
+   step was accepted only with second-order corrections */
 static double line_search(Sqp* s, const Problem* pb, const double* U, double f, double mu,
                           double* memory, double* lam_c, double* lam_u, const double** d) {
   int n = s->nU, failed = 0;
