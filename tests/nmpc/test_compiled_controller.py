@@ -37,7 +37,8 @@ CASES = {
     "real-time iteration": ("planar", "cond-default", ["controller.backend=sqp-rti",
                                                        "controller.horizon=10"], 60, 0.0),
     # the platform's rate lags at 10 Hz with latency: the measured rates start the plan
-    "rate lags": ("flight-rates", "10hz", ["controller.horizon=10",
+    # (a short horizon: the model builds in seconds)
+    "rate lags": ("flight-rates", "10hz", ["controller.horizon=5",
                                            "controller.solver_options.qpsol=daqp",
                                            "controller.strategy=weighted",
                                            "controller.backend=sqp-rti"], 60, 0.0),
