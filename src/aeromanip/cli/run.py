@@ -20,7 +20,9 @@ from typing import TYPE_CHECKING
 from aeromanip.errors import ExitCode, describe_os_error
 
 if TYPE_CHECKING:
+    from aeromanip.experiment.runner import RunResult
     from aeromanip.experiment.scenario import Scenario
+    from aeromanip.interrupts import RunInterrupted
 
 SUMMARY_COLUMNS = (
     ("ee_rmse_m", "EE RMSE m", "{:.4f}"),
@@ -106,25 +108,34 @@ def run(args: argparse.Namespace) -> int:
 def _fly_and_report(scenarios: dict[str, Scenario], out: Path, args: argparse.Namespace) -> int:
     """Fly, print the table, write the exports; one line on stderr for any stop."""
     from aeromanip.experiment.runner import run_scenarios
-    from aeromanip.interrupts import stop_on_signals
+    from aeromanip.interrupts import RunInterrupted, stop_on_signals
 
     t0 = time.perf_counter()
     with stop_on_signals():
         result = run_scenarios(scenarios, out, progress=not args.quiet)
-    print(format_summary(result.summaries))
     where = result.out_dir.resolve() if result.out_dir else out
+    if result.interrupted is None and result.io_error is None:
+        try:  # the run's files are in place: a signal from here on says so
+            return _report_complete(result, where, args, t0)
+        except RunInterrupted as e:
+            return _interrupted_after_the_run(e, where)
+    print(format_summary(result.summaries))
     steps = sum(sc.steps for sc in scenarios.values())
     flown = sum(int(s.get("steps", 0)) for s in result.summaries.values())
     kept = f"{flown} of {steps} steps flown, kept in {where}"
     if result.interrupted is not None:  # stop at once: ``aeromanip replay DIR --mcap`` later
         print(f"aeromanip: interrupted ({result.interrupted}): {kept}", file=sys.stderr)
         return result.interrupted.exit_code
-    if result.io_error is not None:
-        from aeromanip.experiment.rundir import RunDirectory
+    from aeromanip.experiment.rundir import RunDirectory
 
-        why = describe_os_error(result.io_error, root=str(RunDirectory(out).staging))
-        print(f"aeromanip: error: the run stopped: {why}; {kept}", file=sys.stderr)
-        return ExitCode.IO
+    why = describe_os_error(result.io_error, root=str(RunDirectory(out).staging))
+    print(f"aeromanip: error: the run stopped: {why}; {kept}", file=sys.stderr)
+    return ExitCode.IO
+
+
+def _report_complete(result: RunResult, where: Path, args: argparse.Namespace, t0: float) -> int:
+    """The table, the exports and the last line of a run that flew to its end."""
+    print(format_summary(result.summaries))
     if (code := _export(where, args)) is not None:
         return code
     print(f"done in {time.perf_counter() - t0:.1f} s; outputs in {where}")
@@ -139,6 +150,16 @@ def _fly_and_report(scenarios: dict[str, Scenario], out: Path, args: argparse.Na
     return 0
 
 
+def _interrupted_after_the_run(e: RunInterrupted, where: Path) -> int:
+    """The one line of a signal that came once the run's files were in place."""
+    print(
+        f"aeromanip: interrupted ({e}) while writing the exports: the run is complete "
+        f"in {where} (aeromanip replay {where} --mcap writes them)",
+        file=sys.stderr,
+    )
+    return e.exit_code
+
+
 def _export(where: Path, args: argparse.Namespace) -> int | None:
     """``run.mcap`` (and the video); an exit code if a signal or the disk stopped it."""
     from aeromanip.interrupts import RunInterrupted, raise_if_interrupted
@@ -148,12 +169,7 @@ def _export(where: Path, args: argparse.Namespace) -> int | None:
         export_run(where, mcap=not args.no_mcap, video=args.video)
         raise_if_interrupted()  # one Python could not raise (e.g. in a weakref callback)
     except RunInterrupted as e:
-        print(
-            f"aeromanip: interrupted ({e}) while writing the exports: the run is complete "
-            f"in {where} (aeromanip replay {where} --mcap writes them)",
-            file=sys.stderr,
-        )
-        return e.exit_code
+        return _interrupted_after_the_run(e, where)
     except OSError as e:
         print(
             f"aeromanip: error: exports not written: {describe_os_error(e)}; the run is "
