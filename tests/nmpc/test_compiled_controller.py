@@ -31,6 +31,10 @@ CASES = {
     "hierarchical, 4 iterations": ("flight", None, [
         "controller.solver_options.seed=none", *FOUR,
         "controller.solver_options.qpsol_options.daqp.iter_limit=4"], 80, 5.0),
+    # four QPs a level, the last iterate the answer where its rows hold: no cold retry
+    "hierarchical, bounded": ("flight", None, [
+        "controller.solver_options.seed=none", *FOUR,
+        "controller.solver_options.accept_at_max_iter=true"], 80, 25.0),
     # seeded: every failed warm solve is Python's (IPOPT), the steps around it C's
     "hierarchical, seeded, 4 iterations": ("flight", None, [
         *FOUR, "controller.solver_options.qpsol_options.daqp.iter_limit=4"], 60, 5.0),
@@ -76,7 +80,10 @@ def _same(cmd_c, cmd_py, in_c: bool, step: int) -> None:
             lp.level, lp.success, lp.status, lp.iterations), f"step {step}"  # fmt: skip
         for field in ("cost", "gain", "objective", "loss"):
             got, want = getattr(lc, field), getattr(lp, field)
-            assert _close(got, want, rtol, atol), (step, lc.level, field, got, want)
+            # a gain or a loss is a difference of costs: as exact as the costs it takes
+            scale = abs(lp.cost) if field in ("gain", "loss") and math.isfinite(lp.cost) else 0.0
+            assert _close(got, want, rtol, max(atol, rtol * scale)), (
+                step, lc.level, field, got, want)  # fmt: skip
 
 
 @pytest.mark.parametrize("name", list(CASES))

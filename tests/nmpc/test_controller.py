@@ -322,6 +322,8 @@ def test_out_of_iterations_retry_goes_on_from_the_last_iterate():
     seen = []
 
     class Spy:
+        bounded_iterations = False  # a solve out of iterations is retried (``Backend``'s)
+
         def __init__(self, first_status):
             self.first_status = first_status
 

@@ -381,6 +381,8 @@ def test_integer_time_constants_give_the_same_first_order_response():
 class Scripted:
     """A backend that answers from a script and records what it was given."""
 
+    bounded_iterations = False  # a solve out of iterations is retried (``Backend``'s)
+
     def __init__(self, *answers):
         self.answers, self.calls = list(answers), []
 

@@ -113,15 +113,18 @@ def _solve_level(
     st: LevelSolver, p: np.ndarray, w0: np.ndarray, ubg: np.ndarray, lbg: np.ndarray | None = None
 ) -> NlpResult:
     """Solve with the last step's multipliers; on failure retry cold (or go on from the
-    last iterate when the solver only ran out of iterations)."""
+    last iterate when the solver only ran out of iterations, unless its iterations are
+    bounded: ``Backend.bounded_iterations``)."""
     lam_g = lam_x = None
     lbg = st.tr.lbg if lbg is None else lbg
     if st.warm is not None and st.warm.success:
         lam_g, lam_x = st.warm.lam_g, st.warm.lam_x
     request = SolveRequest(w0, p, lbg, ubg, lam_g, lam_x)
     res = st.backend.solve(request)
-    if not res.success and lam_g is not None:  # stale multipliers can mislead: retry cold
-        go_on = res.status == "Maximum_Iterations_Exceeded" and bool(np.isfinite(res.w).all())
+    out_of_iterations = res.status == "Maximum_Iterations_Exceeded"
+    spent = out_of_iterations and st.backend.bounded_iterations
+    if not res.success and lam_g is not None and not spent:  # stale multipliers: retry cold
+        go_on = out_of_iterations and bool(np.isfinite(res.w).all())
         cold = st.backend.solve(request.cold_from(res.w if go_on else w0))
         cold.solve_time_s += res.solve_time_s
         cold.iterations += res.iterations

@@ -77,6 +77,8 @@ class Backend(ABC):
     # what the backend needs, read by the strategies (never its name): an interior point
     # wants a start inside the relaxed hierarchy's rows, an SQP starts anywhere
     needs_feasible_start: ClassVar[bool] = True
+    #: a solve that ran out of iterations is final (a bounded step), not retried cold
+    bounded_iterations: bool = False
 
     @abstractmethod
     def __init__(

@@ -34,11 +34,14 @@ def _codegen_on(monkeypatch):
     monkeypatch.setenv("AEROMANIP_CODEGEN", "1")
 
 
-def closed_loop(kind, strategy, backend, compiled):
+def closed_loop(kind, strategy, backend, compiled, options=None):
     """The commands and statuses of ``STEPS`` steps of the ideal loop."""
     sc = bench_scenario(kind, STEPS * 0.5)
     ctrl, step = _stepper(
-        sc, strategy, backend, {"compiled_loop": compiled, "compiled_step": False}
+        sc,
+        strategy,
+        backend,
+        {**(options or {}), "compiled_loop": compiled, "compiled_step": False},
     )
     loops = [getattr(ls.backend, "loop", None) for ls in ctrl.strategy.solvers]
     assert all((lp is not None) == compiled for lp in loops)
@@ -68,6 +71,18 @@ def test_the_compiled_loop_gives_the_python_loops_commands(kind, strategy, backe
     c_u, c_ok, c_it = closed_loop(kind, strategy, backend, compiled=True)
     assert all(py_ok) and c_ok == py_ok
     assert c_it == py_it  # the same iterations, step by step
+    np.testing.assert_allclose(c_u, py_u, rtol=0, atol=EQUAL)
+
+
+def test_a_bounded_loop_judges_its_last_iterate_as_the_python_loop():
+    """Four QPs a solve, the iterate at the fourth the answer where its rows hold
+    (``accept_at_max_iter``): the strict hierarchy's second level, along the first's
+    curved rows, runs out with them held or not, step by step alike."""
+    bounded = {"seed": "none", "max_iter": 4, "accept_at_max_iter": True}
+    py_u, py_ok, py_it = closed_loop("fast", "hierarchical", "sqp", False, bounded)
+    c_u, c_ok, c_it = closed_loop("fast", "hierarchical", "sqp", True, bounded)
+    assert c_ok == py_ok and not all(py_ok)  # some steps partial
+    assert c_it == py_it
     np.testing.assert_allclose(c_u, py_u, rtol=0, atol=EQUAL)
 
 

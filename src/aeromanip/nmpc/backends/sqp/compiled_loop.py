@@ -72,6 +72,7 @@ STATUS = {
     5: "QP failed",
     6: "RTI step",
     7: "model evaluation failed",
+    8: "Feasible_At_Maximum_Iterations",
 }
 
 

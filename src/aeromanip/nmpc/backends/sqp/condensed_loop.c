@@ -51,11 +51,11 @@ static double kkt_error(Sqp* s, const double* U, const double* lbc, const double
 }
 
 /* opts: max_iter, tol, acceptable_tol, constr_viol_tol, acceptable_iter, rti, hessian
-   (HESS_*), regularization, warm (multipliers given) */
+   (HESS_*), regularization, warm (multipliers given), accept_at_max_iter */
 /* the bounds of one solve and its options */
 typedef struct {
   const double *p, *lbc, *ubc, *lbU, *ubU;
-  int max_iter, acceptable_iter, rti, hess_mode, warm;
+  int max_iter, acceptable_iter, rti, hess_mode, warm, accept_at_max_iter;
   double tol, acceptable_tol, constr_viol_tol, regularization;
 } Problem;
 
@@ -72,7 +72,9 @@ static int verdict(Sqp* s, const Problem* pb, const double* U, const double* lam
   *acceptable = kkt <= pb->acceptable_tol ? *acceptable + 1 : 0;
   if (*acceptable >= pb->acceptable_iter || (it >= pb->max_iter && *acceptable))
     return ST_ACCEPTABLE;
-  return it >= pb->max_iter ? ST_MAX_ITER : 0;
+  if (it < pb->max_iter) return 0;
+  return pb->accept_at_max_iter && viol <= pb->constr_viol_tol ? ST_FEASIBLE_AT_MAX_ITER
+                                                                : ST_MAX_ITER;
 }
 
 /* second-order corrections of the step s->qd (condensed_qp.py: correction; solver.py:
@@ -177,12 +179,13 @@ static int qp_step(Sqp* s, const Problem* pb, const double* U, double* lam_c, do
 }
 
 /* opts: max_iter, tol, acceptable_tol, constr_viol_tol, acceptable_iter, rti, hessian
-   (HESS_*), regularization, warm (multipliers given) */
+   (HESS_*), regularization, warm (multipliers given), accept_at_max_iter */
 int sqp_solve(Sqp* s, const double* opts, const double* p, const double* lbc,
               const double* ubc, const double* lbU, const double* ubU, double* U,
               double* lam_c, double* lam_u, double* memory, SqpInfo* info) {
   Problem pb = {p, lbc, ubc, lbU, ubU, (int)opts[0], (int)opts[4], opts[5] != 0.0,
-                (int)opts[6], opts[8] != 0.0, opts[1], opts[2], opts[3], opts[7]};
+                (int)opts[6], opts[8] != 0.0, opts[9] != 0.0, opts[1], opts[2], opts[3],
+                opts[7]};
   if (pb.rti) pb.max_iter = 1;
   double mu = 0.0, damping = 0.0, f;
   int it = 0, acceptable = 0, status, exact = pb.hess_mode == HESS_EXACT;

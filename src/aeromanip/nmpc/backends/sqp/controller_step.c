@@ -44,7 +44,7 @@ struct AmController {
   Level* level;
   Fn parameters, plan;
   double *guess, *gc, *scratch;
-  double opts[9];
+  double opts[10];
 };
 
 /* a clock for the levels' times [s] (0 where C11's timespec_get is missing) */
@@ -262,7 +262,8 @@ static int finite_all(const double* v, int n) {
 }
 
 static int succeeded(const AmController* c, int status, const double* U) {
-  int ok = status == ST_SOLVED || status == ST_ACCEPTABLE || status == ST_RTI;
+  int ok = status == ST_SOLVED || status == ST_ACCEPTABLE || status == ST_RTI ||
+           status == ST_FEASIBLE_AT_MAX_ITER;
   return ok && finite_all(U, c->cfg->nU);
 }
 
@@ -312,7 +313,9 @@ static int solve_level(AmController* c, int i, const double* start) {
   double promise = s->f;
   int status = solve(c, i, start, warm, &info);
   s->iterations += info.iterations;
-  if (!succeeded(c, status, s->U) && warm) { /* stale multipliers can mislead: retry cold */
+  /* accept_at_max_iter bounds the step: a solve that ran out of iterations is final */
+  int spent = status == ST_MAX_ITER && c->cfg->opts[9] != 0.0;
+  if (!succeeded(c, status, s->U) && warm && !spent) { /* stale multipliers: retry cold */
     if (c->cfg->host_seeds) {
       host = 1;
     } else {

@@ -45,7 +45,10 @@ How it is built, and why:
   QP's multipliers; or, as IPOPT's acceptable level, stationarity and complementarity
   ``<= acceptable_tol`` (violation ``<= constr_viol_tol``) for ``acceptable_iter``
   iterations in a row (the hierarchy's cost bounds are degenerate where a higher
-  level's optimum is ~0: convergence there is linear).
+  level's optimum is ~0: convergence there is linear). With ``accept_at_max_iter``, a
+  solve that reaches ``max_iter`` with its rows held (violation ``<= constr_viol_tol``)
+  ends with that iterate (``Feasible_At_Maximum_Iterations``, as acados' SQP returns its
+  last iterate): a step of bounded cost for real time, the next step going on from it.
 * **Real-time iteration** (``rti=True``): one Gauss-Newton QP and a full step per call,
   from the shifted previous solution; successful if the QP is. Iterated, it converges to
   the same optimum.
@@ -93,6 +96,9 @@ DEFAULTS: dict[str, Any] = {
     "acceptable_tol": 1e-5,
     "constr_viol_tol": 1e-6,
     "acceptable_iter": 5,
+    # at max_iter, an iterate whose rows hold is the answer (a bounded step for real
+    # time); False: the solve failed (the controller's fallback)
+    "accept_at_max_iter": False,
     "rti": False,  # one QP per solve
     "codegen": True,  # compile the model Functions to C (cached on disk)
     # run the whole loop in compiled C where it applies (the condensed model with DAQP,
@@ -159,6 +165,7 @@ OPTION_CHECKS: dict[str, Callable[[Any], str]] = {
     "acceptable_tol": _number(positive=True),
     "constr_viol_tol": _number(positive=True),
     "acceptable_iter": _int_at_least(1),
+    "accept_at_max_iter": lambda v: "" if isinstance(v, bool) else "true or false",
     "rti": lambda v: "" if isinstance(v, bool) else "true or false",
     "codegen": lambda v: "" if isinstance(v, bool) else "true or false",
     "compiled_loop": lambda v: "" if isinstance(v, bool) else "true or false",
@@ -191,7 +198,9 @@ PENALTY_FLOOR = 1e-8  # and by at least this
 # most this many in a row, each while the last cut the rows' violation by this factor
 MAX_SOC = 4
 KAPPA_SOC = 0.99
-SOLVED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")  # the loop's successful ends
+WARM_OPTION = 8  # the compiled loop's options: where "the multipliers are given" goes
+#: the loop's successful ends
+SOLVED = ("Solve_Succeeded", "Solved_To_Acceptable_Level", "Feasible_At_Maximum_Iterations")
 #: the constants above, for the compiled loop
 LOOP_CONSTANTS = {
     "exact_from_iteration": EXACT_FROM_ITERATION, "armijo": ARMIJO, "backtrack": BACKTRACK,
@@ -219,6 +228,7 @@ class SqpBackend(Backend):
         self, transcription: Transcription, options: Mapping[str, Any] | None = None
     ) -> None:
         self.opts = self.checked_options(options, transcription.N)
+        self.bounded_iterations = bool(self.opts["accept_at_max_iter"])
         self.tr = transcription
         self.qpsol = self.pick_qp(self.opts, transcription.N)
         if self.qpsol in SPARSE_QP_SOLVERS:
@@ -233,7 +243,8 @@ class SqpBackend(Backend):
         self._loop_opts = np.array(
             [self.opts[k] for k in ("max_iter", "tol", "acceptable_tol", "constr_viol_tol",
                                     "acceptable_iter", "rti")]
-            + [HESSIAN_CODES[self.opts["hessian"]], self.opts["regularization"], 0.0],
+            + [HESSIAN_CODES[self.opts["hessian"]], self.opts["regularization"], 0.0,
+               self.opts["accept_at_max_iter"]],
             dtype=float,
         )  # fmt: skip
         if self.opts["blas_threads"] is not None:  # every OpenBLAS loaded by now
@@ -372,7 +383,7 @@ class SqpBackend(Backend):
         assert self.loop is not None
         p = np.ascontiguousarray(request.p, dtype=float)
         v, lam_c, lam_v = self.model.start(replace(request, p=p))
-        self._loop_opts[-1] = 0.0 if request.cold else 1.0
+        self._loop_opts[WARM_OPTION] = 0.0 if request.cold else 1.0
         status = self.loop.solve(self._loop_opts, p, v, lam_c, lam_v)
         info = self.loop.info
         if status == "QP failed":
@@ -460,6 +471,8 @@ class SqpBackend(Backend):
         if acceptable >= o["acceptable_iter"] or (it >= max_iter and acceptable):
             return "Solved_To_Acceptable_Level", acceptable
         if it >= max_iter:
+            if o["accept_at_max_iter"] and viol <= o["constr_viol_tol"]:
+                return "Feasible_At_Maximum_Iterations", acceptable
             return "Maximum_Iterations_Exceeded", acceptable
         return "", acceptable
 

@@ -12,7 +12,7 @@
 
 /* the outcome of a solve (Python maps them to IPOPT-like status words) */
 enum { ST_SOLVED = 1, ST_ACCEPTABLE = 2, ST_MAX_ITER = 3, ST_INVALID = 4, ST_QP_FAILED = 5,
-       ST_RTI = 6, ST_MODEL_FAILED = 7 };
+       ST_RTI = 6, ST_MODEL_FAILED = 7, ST_FEASIBLE_AT_MAX_ITER = 8 };
 enum { HESS_AUTO = 0, HESS_EXACT = 1, HESS_GN = 2 };
 
 #define MAX_SIZES 16
