@@ -31,6 +31,9 @@ pytestmark = pytest.mark.realtime  # flies against the wall clock: the machine t
 
 RUN_S = 40.0  # [s] the SITL's longest run (real time); stopped when the tests are done
 ME = (255, 190)  # the client's system and component
+SETTLE_S = 0.3  # [s] the shortest wait after a command: what is sent with the answer
+ANSWER_WAIT_S = 3.0  # [s] the longest wait for its answer (a fully loaded machine)
+GET_MESSAGE_INTERVAL = 510  # MAV_CMD: answered by MESSAGE_INTERVAL, no COMMAND_ACK
 RATE_WINDOW_S = 4.0  # [s] messages counted over this
 PX4_RATES = {  # [Hz] PX4's ground-station link, and the SITL's state rate
     "HEARTBEAT": 1.0,
@@ -84,9 +87,10 @@ class Gcs:
         )
         self.log: list[tuple[float, object]] = []
 
-    def pump(self, seconds: float) -> None:
+    def pump(self, seconds: float, until=lambda: False) -> None:
+        """Keep what arrives for ``seconds``, or until ``until()`` holds."""
         end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        while time.monotonic() < end and not until():
             msg = self.conn.recv_msg()
             if msg is None:
                 time.sleep(0.001)
@@ -105,9 +109,17 @@ class Gcs:
                                            int(p[5]), p[6])  # fmt: skip
         else:
             self.conn.mav.command_long_send(*target, command, 0, *p)
-        self.pump(0.3)
-        acks = [a for a in self.since(t0, "COMMAND_ACK") if a.command == command]
-        return (acks[0] if acks else None), t0
+
+        def acks() -> list:
+            return [a for a in self.since(t0, "COMMAND_ACK") if a.command == command]
+
+        def answered() -> bool:  # GET_MESSAGE_INTERVAL is answered by its reply alone
+            reply = command == GET_MESSAGE_INTERVAL and self.since(t0, "MESSAGE_INTERVAL")
+            return bool(acks() or reply)
+
+        self.pump(SETTLE_S)  # what comes with the answer arrives too
+        self.pump(ANSWER_WAIT_S - SETTLE_S, until=answered)  # a loaded machine answers late
+        return (acks()[0] if acks() else None), t0
 
     def texts(self, t0: float) -> list[str]:
         """The STATUSTEXTs since ``t0``, chunks (same non-zero id) joined."""

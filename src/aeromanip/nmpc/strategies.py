@@ -275,10 +275,9 @@ class Hierarchical(Strategy):
         for j, c_star in enumerate(optima):
             rows = np.asarray(st.tr.hier_rows[j], dtype=int)
             if self.mode == "strict":
-                R = self._rows_at(st, level_w[j], p)[rows]
-                fixed = ~st.tr.g_movable[rows]  # no decision moves them: left out
-                lbg[rows] = np.where(fixed, -np.inf, R)
-                ubg[rows] = np.where(fixed, np.inf, R)
+                pinned, free = st.tr.strict_pins(j)
+                lbg[pinned] = ubg[pinned] = self._rows_at(st, level_w[j], p)[pinned]
+                lbg[free], ubg[free] = -np.inf, np.inf
             elif self.mode == "residual":
                 lbg[rows], ubg[rows] = self._residual_box(st, j, level_w[j], p, c_star)
             else:

@@ -339,6 +339,14 @@ class Transcription:
         #: per row of g: whether any decision variable (not the pinned stage 0) moves it
         self.g_movable = movable
 
+    def strict_pins(self, group: int) -> tuple[np.ndarray, np.ndarray]:
+        """A strict hierarchy's rule for a higher level's residual rows in this NLP
+        (``hier_rows[group]``): the rows a decision moves, held at that level's values
+        (in ``hier_rows`` order), and the rows none does, left free."""
+        rows = np.asarray(self.hier_rows[group], dtype=int)
+        movable = self.g_movable[rows]
+        return rows[movable], rows[~movable]
+
     # -- evaluation and packing ---------------------------------------------------------
     def use_stage_costs(self, f: ca.Function) -> None:
         """Evaluate ``stage_costs`` (and ``costs``) with ``f``, e.g. its compiled twin."""

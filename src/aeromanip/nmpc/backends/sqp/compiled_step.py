@@ -29,81 +29,17 @@ from aeromanip.nmpc.backends.sqp.compiled_loop import STATUS, loop_library, loop
 from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
 from aeromanip.nmpc.backends.sqp.dense_qp import failure_text
 from aeromanip.nmpc.backends.sqp.solver import LOOP_CONSTANTS, SEED_FLOOR, SqpBackend
+from aeromanip.nmpc.backends.sqp.step_structs import (
+    DOUBLES,
+    POINTER,
+    STEP_STATUS,
+    AmConfig,
+    AmLevel,
+    AmLevelState,
+    AmOutput,
+    AmState,
+)
 from aeromanip.nmpc.strategies import Hierarchical, Strategy, Weighted
-
-_ptr = ctypes.c_void_p
-_doubles = ctypes.POINTER(ctypes.c_double)
-#: the step's outcomes (``controller_step.h``) -> the Python controller's status words
-STEP_STATUS = {0: "ok", 1: "fallback", 2: "stopped", 3: "bad input", 4: "partial", 5: "host"}
-
-
-class AmLevel(ctypes.Structure):
-    """``AmLevel`` of ``controller_step.h``."""
-
-    _fields_ = [
-        ("dims", _ptr), ("hier_row", _ptr), ("always", _ptr), ("sizes", _ptr),
-        ("n_sizes", ctypes.c_int), ("screen", ctypes.c_double), ("shift_rows", _ptr),
-        ("pins", _ptr), ("n_pins", ctypes.c_int),
-        ("data", _ptr), ("merit", _ptr), ("hess", _ptr), ("bounds", _ptr),
-        ("data_work", _ptr), ("merit_work", _ptr), ("hess_work", _ptr), ("bounds_work", _ptr),
-    ]  # fmt: skip
-
-
-class AmConfig(ctypes.Structure):
-    """``AmConfig`` of ``controller_step.h``."""
-
-    _fields_ = [
-        ("nx", ctypes.c_int), ("N", ctypes.c_int), ("nU", ctypes.c_int), ("np", ctypes.c_int),
-        ("n_levels", ctypes.c_int), ("levels", ctypes.POINTER(AmLevel)),
-        ("daqp", _ptr), ("constants", _ptr), ("opts", _ptr), ("shift_vars", _ptr),
-        ("lbU", _ptr), ("ubU", _ptr), ("u_lower", _ptr), ("u_upper", _ptr),
-        ("parameters", _ptr), ("plan", _ptr), ("parameters_work", _ptr), ("plan_work", _ptr),
-        ("host_seeds", ctypes.c_int), ("seed_ratio", ctypes.c_double),
-        ("seed_floor", ctypes.c_double),
-    ]  # fmt: skip
-
-
-class AmTried(ctypes.Structure):
-    """``AmTried`` of ``controller_step.h``."""
-
-    _fields_ = [
-        ("U", _doubles), ("lam_c", _doubles), ("lam_u", _doubles), ("memory", _doubles),
-        ("f", ctypes.c_double), ("seconds", ctypes.c_double), ("qp_excess", ctypes.c_double),
-        ("status", ctypes.c_int), ("iterations", ctypes.c_int),
-        ("qp_exitflag", ctypes.c_int), ("qp_finite", ctypes.c_int), ("valid", ctypes.c_int),
-    ]  # fmt: skip
-
-
-class AmLevelState(ctypes.Structure):
-    """``AmLevelState`` of ``controller_step.h``."""
-
-    _fields_ = [
-        ("U", _doubles), ("lam_c", _doubles), ("lam_u", _doubles), ("memory", _doubles),
-        ("lbc", _doubles), ("ubc", _doubles), ("f", ctypes.c_double), ("warm", ctypes.c_int),
-        ("status", ctypes.c_int), ("iterations", ctypes.c_int), ("seconds", ctypes.c_double),
-        ("qp_exitflag", ctypes.c_int), ("qp_finite", ctypes.c_int),
-        ("qp_excess", ctypes.c_double), ("tried", AmTried),
-    ]  # fmt: skip
-
-
-class AmState(ctypes.Structure):
-    """``AmState`` of ``controller_step.h``."""
-
-    _fields_ = [
-        ("u_prev", _doubles), ("p", _doubles), ("first", _doubles), ("plan_x", _doubles),
-        ("plan_u", _doubles), ("has_plan", ctypes.c_int), ("plan_age", ctypes.c_int),
-        ("has_first", ctypes.c_int),
-    ]  # fmt: skip
-
-
-class AmOutput(ctypes.Structure):
-    """``AmOutput`` of ``controller_step.h``."""
-
-    _fields_ = [
-        ("u", _doubles), ("plan_x", _doubles), ("plan_u", _doubles),
-        ("status", ctypes.c_int), ("solver_status", ctypes.c_int),
-        ("iterations", ctypes.c_int), ("levels", ctypes.c_int), ("cost", ctypes.c_double),
-    ]  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -131,18 +67,16 @@ class StepParts:
 
 def _level_parts(backend: Any) -> LevelParts:
     """A level's model, its row bounds and the rows the higher levels' answers pin
-    (``Hierarchical._bounds`` in ``strict`` mode: a higher level's residual rows held at
-    their values there, the rows no decision moves left free)."""
+    (``Transcription.strict_pins``: a higher level's residual rows held at their values
+    there, the rows no decision moves left free)."""
     model, tr = backend.model, backend.tr
     lbg, ubg = tr.lbg.copy(), tr.ubg.copy()
     row_of = {r: i for i, r in enumerate(model.keep)}
     pins = []
-    for j, rows in enumerate(tr.hier_rows):
-        for r in rows:
-            if tr.g_movable[r]:
-                pins.append((row_of[r], j))
-            else:
-                lbg[r], ubg[r] = -np.inf, np.inf
+    for j in range(len(tr.hier_rows)):
+        pinned, free = tr.strict_pins(j)
+        pins += [(row_of[int(r)], j) for r in pinned]
+        lbg[free], ubg[free] = -np.inf, np.inf
     return LevelParts(backend, model, lbg, ubg, np.array(pins, dtype=int).reshape(-1, 2))
 
 
@@ -189,19 +123,19 @@ def _symbols(f: ca.Function) -> tuple[ctypes.CDLL, int, int] | None:
 
 
 def _declare(lib: ctypes.CDLL) -> None:
-    lib.am_new.restype = _ptr
+    lib.am_new.restype = POINTER
     lib.am_new.argtypes = [ctypes.POINTER(AmConfig)]
-    lib.am_free.argtypes = [_ptr]
+    lib.am_free.argtypes = [POINTER]
     lib.am_free.restype = None
-    lib.am_reset.argtypes = [_ptr, _ptr]
+    lib.am_reset.argtypes = [POINTER, POINTER]
     lib.am_reset.restype = None
-    lib.am_discard.argtypes = [_ptr]
+    lib.am_discard.argtypes = [POINTER]
     lib.am_discard.restype = None
-    lib.am_step.argtypes = [_ptr, _ptr, _ptr, ctypes.c_double, ctypes.POINTER(AmOutput)]
+    lib.am_step.argtypes = [POINTER, POINTER, POINTER, ctypes.c_double, ctypes.POINTER(AmOutput)]
     lib.am_step.restype = ctypes.c_int
-    lib.am_state.argtypes = [_ptr]
+    lib.am_state.argtypes = [POINTER]
     lib.am_state.restype = ctypes.POINTER(AmState)
-    lib.am_level_state.argtypes = [_ptr, ctypes.c_int]
+    lib.am_level_state.argtypes = [POINTER, ctypes.c_int]
     lib.am_level_state.restype = ctypes.POINTER(AmLevelState)
 
 
@@ -360,7 +294,7 @@ class CompiledStep:
                       "tried_memory": view(ls.tried.memory, (nc,))}  # fmt: skip
             self.levels.append((ls, arrays))
         self.u, self.out_x, self.out_u = np.zeros(nx), np.zeros((N + 1, nx)), np.zeros((N, nx))
-        bufs = (a.ctypes.data_as(_doubles) for a in (self.u, self.out_x, self.out_u))
+        bufs = (a.ctypes.data_as(DOUBLES) for a in (self.u, self.out_x, self.out_u))
         self.out = AmOutput(*bufs)
         self._out_ref = ctypes.byref(self.out)
 
