@@ -14,6 +14,7 @@ from aeromanip.nmpc.backends.sqp.convexify import (
     CONVEX_TOL,
     CONVEXIFY_DECADES,
     EIGEN_FLOOR,
+    SHIFTS,
     active_normals,
     convexified,
     convexified_blocks,
@@ -116,8 +117,8 @@ def random_blocks(rng, shift=0.0):
 @pytest.mark.parametrize("seed", range(6))
 def test_reduced_convexified_makes_the_condensed_hessian_positive_definite(seed):
     """Indefinite blocks whose condensed Hessian is indefinite: after, it is positive
-    definite; only the command blocks ``R_k`` change (reflection alone), and a second pass
-    changes nothing."""
+    definite; only the command blocks ``R_k`` change, and a second pass changes
+    nothing."""
     rng = np.random.default_rng(seed)
     A, B = dynamics(seed)
     Hs, HT = random_blocks(rng, shift=30.0)
@@ -185,6 +186,38 @@ def test_an_active_rows_penalty_keeps_the_step_on_that_active_set():
         return np.linalg.solve(K, np.concatenate([-g, [0.0]]))[: N * NU]
 
     np.testing.assert_allclose(step(Hc), step(H), rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_where_no_penalty_helps_the_commands_take_the_least_shift_that_does(seed):
+    """Indefinite along its active row's null space too (no penalty on the row can
+    help): ``delta I`` on every command block, ``delta`` the first of ``SHIFTS`` (times
+    the largest diagonal entry) whose condensed Hessian is positive definite, the
+    states' rows and the terminal block as they were."""
+    rng = np.random.default_rng(seed)
+    A, B = dynamics(seed)
+    Hs, HT = random_blocks(rng, shift=30.0)
+    c = rng.normal(size=NX + NU)
+    lam, C = np.zeros((N, 1)), np.zeros((N, 1, NX + NU))
+    lam[2, 0], C[2, 0] = 0.7, c
+    active = active_normals(
+        (C, np.zeros((0, NX))), (lam, np.zeros(0)), (np.zeros((N, NX + NU)), np.zeros(NX))
+    )
+    out, out_T = reduced_convexified(Hs, HT, (A, B), lambda: active)
+    assert out_T is HT
+    shift = out - Hs
+    delta = shift[0, NX, NX]
+    np.testing.assert_array_equal(shift, delta * np.broadcast_to(np.diag(
+        np.r_[np.zeros(NX), np.ones(NU)]), shift.shape))  # fmt: skip
+    scale = np.abs(np.diagonal(Hs, axis1=1, axis2=2)).max()
+    k = int(np.flatnonzero(np.isclose(scale * SHIFTS, delta, rtol=1e-12))[0])
+
+    def definite(d):
+        Hd = Hs.copy()
+        Hd[:, NX:, NX:] += d * np.eye(NU)
+        return np.linalg.eigvalsh(condensed(Hd, HT, A, B)).min() > 0
+
+    assert definite(delta) and (k == 0 or not definite(scale * SHIFTS[k - 1]))
 
 
 def test_active_normals_against_a_loop_over_rows_and_bounds():
