@@ -15,13 +15,14 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src" / "aeromanip"
 DOC = ROOT / "docs" / "architecture.md"
-BASE = {"errors", "config", "registry", "interrupts"}
+BASE = {"errors", "config", "registry", "interrupts", "realtime"}
 # each top-level part of the package and the parts it may import (besides itself)
 ALLOWED: dict[str, set[str]] = {
     "errors": set(),
     "config": {"errors"},
     "registry": {"errors"},
     "interrupts": set(),
+    "realtime": set(),
     "references": BASE,
     "robot": BASE,
     "tasks": BASE | {"references", "robot"},

@@ -21,6 +21,7 @@ from aeromanip.interrupts import deferred, raise_if_interrupted
 from aeromanip.nmpc.constraints import Clearance
 from aeromanip.nmpc.controller import Command, Controller
 from aeromanip.nmpc.strategies import STRATEGIES
+from aeromanip.realtime import setup_frozen
 from aeromanip.robot.spec import PLATFORM_DOFS
 from aeromanip.sim.base import SIMULATORS, Simulator
 from aeromanip.sim.contact import PROBE_RADIUS, read_surfaces
@@ -185,32 +186,33 @@ def fly(
     sim.reset(sc.x0)
     held_u, held_start = np.zeros(sc.robot.nx), np.asarray(sc.x0, dtype=float)
     bar = Progress(sc.steps, sc.name) if progress else None
-    try:
-        for k in range(sc.steps):
-            raise_if_interrupted()
-            t = k * dt
-            # a signal is raised between steps, never inside CasADi's or MuJoCo's C calls
-            # (one landing in a conversion of their results surfaced as a SystemError)
-            with deferred():
-                rates = sim.rates() if measure_rates else None
-                measured = (sim.measured_wrench(), sim.measured_attitude())
-                cmd = ctrl.step(sim.state(), t, rates, *measured)
-                row = maker.row(t, sim.true_state(), sim.ee_position(), cmd)
-                now = {n: v for n, v in sim.extras().items() if n in sim.instant_extras}
-                if lag > 0:
-                    sim.advance(held_u, held_start, lag)
-                if cmd.force_ff is not None:  # from now on (the previous one flew the lag)
-                    sim.set_force_feedforward(cmd.force_ff)
-                sim.advance(cmd.u, cmd.plan_x, dt - lag)
-                held_u, held_start = cmd.u, cmd.plan_x[0] + (dt - lag) * cmd.u
-                row.update(sim.extras())  # means over the period this row's command flew
-                row.update(now)  # values at this row's time, as the state
-                sink(row)  # a step flown is a row kept
+    with setup_frozen():  # no full garbage collection inside a step
+        try:
+            for k in range(sc.steps):
+                raise_if_interrupted()
+                t = k * dt
+                # a signal is raised between steps, never inside CasADi's or MuJoCo's C calls
+                # (one landing in a conversion of their results surfaced as a SystemError)
+                with deferred():
+                    rates = sim.rates() if measure_rates else None
+                    measured = (sim.measured_wrench(), sim.measured_attitude())
+                    cmd = ctrl.step(sim.state(), t, rates, *measured)
+                    row = maker.row(t, sim.true_state(), sim.ee_position(), cmd)
+                    now = {n: v for n, v in sim.extras().items() if n in sim.instant_extras}
+                    if lag > 0:
+                        sim.advance(held_u, held_start, lag)
+                    if cmd.force_ff is not None:  # from now on (the previous one flew the lag)
+                        sim.set_force_feedforward(cmd.force_ff)
+                    sim.advance(cmd.u, cmd.plan_x, dt - lag)
+                    held_u, held_start = cmd.u, cmd.plan_x[0] + (dt - lag) * cmd.u
+                    row.update(sim.extras())  # means over the period this row's command flew
+                    row.update(now)  # values at this row's time, as the state
+                    sink(row)  # a step flown is a row kept
+                if bar is not None:
+                    bar.update(k + 1)
+        finally:
             if bar is not None:
-                bar.update(k + 1)
-    finally:
-        if bar is not None:
-            bar.close()
+                bar.close()
     return sc.steps
 
 

@@ -39,6 +39,7 @@ from aeromanip.experiment.closed_loop import RowMaker, make_controller
 from aeromanip.experiment.scenario import Scenario
 from aeromanip.interrupts import deferred, raise_if_interrupted
 from aeromanip.nmpc.controller import Command
+from aeromanip.realtime import setup_frozen
 from aeromanip.runtime.follower import GAIN, Plan, PlanFollower
 from aeromanip.runtime.measure import Measurement, MissionClock, StateReader
 from aeromanip.runtime.streamer import LINK_LOSS_S, STREAM_HZ, Streamer
@@ -118,12 +119,13 @@ class RealtimeFlight:
         self.follower.hold(m.x)
         self.streamer.start()
         try:
-            self._sleep_until(time.monotonic() + PRE_STREAM_S)
-            self.transport.arm(COMMAND_TIMEOUT_S)
-            self.transport.set_mode("offboard", COMMAND_TIMEOUT_S)
-            self.streamer.flying.set()
-            self._first_step(sink)
-            self._steps(sink)
+            with setup_frozen():  # no full garbage collection inside a step
+                self._sleep_until(time.monotonic() + PRE_STREAM_S)
+                self.transport.arm(COMMAND_TIMEOUT_S)
+                self.transport.set_mode("offboard", COMMAND_TIMEOUT_S)
+                self.streamer.flying.set()
+                self._first_step(sink)
+                self._steps(sink)
             self.stats.ending = "completed"
             self._hold()
         except LinkError:
