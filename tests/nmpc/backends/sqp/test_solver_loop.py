@@ -201,7 +201,7 @@ def test_bad_seed_options_are_one_clear_line(options, message):
 
 def test_seed_defaults():
     opts = SqpBackend.checked_options({})
-    assert opts["seed"] == "ipopt" and opts["seed_ratio"] == 3.0
+    assert opts["seed"] == "ipopt" and opts["seed_ratio"] == 10.0
 
 
 def result(f, success=True, iterations=2, time_s=0.01, w=0.0):
@@ -309,8 +309,8 @@ def test_a_failed_answer_makes_no_promise(seeded_backend):
 @pytest.mark.parametrize(
     ("promise", "f", "seeded"),
     [
-        (1.0, 3.0 * 1.0 + SEED_FLOOR, False),  # exactly at seed_ratio x promise + floor
-        (1.0, 3.0 * 1.0 + 2 * SEED_FLOOR, True),
+        (1.0, 10.0 * 1.0 + SEED_FLOOR, False),  # exactly at seed_ratio x promise + floor
+        (1.0, 10.0 * 1.0 + 2 * SEED_FLOOR, True),
         (0.0, 0.5 * SEED_FLOOR, False),  # within the floor of a zero promise
         (0.0, 2.0 * SEED_FLOOR, True),
     ],
@@ -319,7 +319,7 @@ def test_an_answer_is_re_seeded_only_above_seed_ratio_times_the_promise_plus_the
     seeded_backend, promise, f, seeded
 ):
     sqp, script = seeded_backend
-    assert sqp.opts["seed_ratio"] == 3.0
+    assert sqp.opts["seed_ratio"] == 10.0
     script.sqp = [result(promise), result(f), result(0.5 * f)]  # the last one from the seed
     script.ipopt = [result(0.5 * f)]
     solve(sqp), solve(sqp)
