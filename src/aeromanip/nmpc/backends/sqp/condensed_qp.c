@@ -234,12 +234,18 @@ static void convexify(Sqp* s, double* H, const double* lam_c, const double* lam_
     if (fabs(lam[i]) > top) top = fabs(lam[i]);
   double floor = s->k.eigen_floor * (top > 1e-3 ? top : 1e-3);
   for (int i = 0; i < n; ++i) lam[i] = fabs(lam[i]) > floor ? fabs(lam[i]) : floor;
-  for (int j = 0; j < n; ++j)
-    for (int i = 0; i < n; ++i) {
-      double v = 0.0;
-      for (int k = 0; k < n; ++k) v += s->V[i + (size_t)k * n] * lam[k] * s->V[j + (size_t)k * n];
-      H[i + (size_t)j * n] = v;
+  /* H = V diag(lam) V', column by column of V: the inner loops run down columns */
+  memset(H, 0, sizeof(double) * (size_t)n * n);
+  for (int k = 0; k < n; ++k) {
+    const double* v = s->V + (size_t)k * n;
+    for (int j = 0; j < n; ++j) {
+      double w = lam[k] * v[j];
+      double* Hj = H + (size_t)j * n;
+      for (int i = j; i < n; ++i) Hj[i] += w * v[i];
     }
+  }
+  for (int j = 0; j < n; ++j)
+    for (int i = j + 1; i < n; ++i) H[j + (size_t)i * n] = H[i + (size_t)j * n];
 }
 
 /* the QP's Hessian at the iterate: Gauss-Newton (plus the hierarchy rows' curvature) or

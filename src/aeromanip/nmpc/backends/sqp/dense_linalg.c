@@ -255,7 +255,7 @@ static void tql2(double* V, int n, double* d, double* e) {
     if (m == n) m = n - 1;
     if (m > l) {
       for (int iter = 0; iter < 60; ++iter) {
-        double g = lam[l], p = (lam[l + 1] - g) / (2.0 * e[l]), r = hypot(p, 1.0);
+        double g = lam[l], p = (lam[l + 1] - g) / (2.0 * e[l]), r = sqrt(p * p + 1.0);
         if (p < 0) r = -r;
         lam[l] = e[l] / (p + r);
         lam[l + 1] = e[l] * (p + r);
@@ -270,7 +270,7 @@ static void tql2(double* V, int n, double* d, double* e) {
           s2 = s;
           g = c * e[i];
           h = c * p;
-          r = hypot(p, e[i]);
+          r = sqrt(p * p + e[i] * e[i]); /* no overflow at a Hessian's magnitudes */
           e[i + 1] = s * r;
           s = e[i] / r;
           c = p / r;
