@@ -116,8 +116,9 @@ def reduced_convexified(
     indefinite pivot's eigenvalues are reflected (``|lambda|``, floored) by a change of
     ``R_k`` alone (Verschueren et al. 2017, "Sparsity preserving convexification").
     Reflected, a strict hierarchy's lower level crawled along the higher level's pinned
-    rows where they curve down (the stress bench's ``fast`` case at N = 20: 50 QPs,
-    steps growing 1.2x a QP); shifted, it took 25. ``pivots``: the recursion
+    rows where they curve down (the flight 25x faster at N = 20,
+    ``benchmarks/bench_bounds_bind_n20.py``: 50 QPs, steps growing 1.2x a QP); shifted,
+    it took 27. ``pivots``: the recursion
     (``riccati_pivots``' signature; default it, in NumPy; ``ocp_ipm.CompiledPivots`` is
     the same in C)."""
     pivots = pivots or riccati_pivots
