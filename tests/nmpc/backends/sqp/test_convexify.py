@@ -1,9 +1,11 @@
 """Hessian convexification.
 
 Dense: against a NumPy re-implementation of the rule of ``convexify.py`` (``rho = base
-10^k``, the smallest that makes ``H + rho C'C`` positive definite; otherwise ``|lambda|``
-floored at ``EIGEN_FLOOR max(|lambda|max, 1e-3)``), with ``numpy.linalg.eigvalsh`` as the
-positive-definiteness test. Per-stage blocks: against the condensed Hessian built here by
+10^k``, the smallest that makes ``H + rho C'C`` positive definite, each tried in turn;
+otherwise the ``delta`` of ``SHIFTS`` (times the largest diagonal entry) one above the
+smallest that makes ``H + delta I`` so; otherwise ``|lambda|`` floored at ``EIGEN_FLOOR
+max(|lambda|max, 1e-3)``), with ``numpy.linalg.eigvalsh`` as the positive-definiteness
+test. Per-stage blocks: against the condensed Hessian built here by
 eliminating the states explicitly (independent of the Riccati recursion the module uses),
 and the equality-constrained step solved whole."""
 
@@ -14,6 +16,7 @@ from aeromanip.nmpc.backends.sqp.convexify import (
     CONVEX_TOL,
     CONVEXIFY_DECADES,
     EIGEN_FLOOR,
+    SHIFT_STEP,
     SHIFTS,
     active_normals,
     convexified,
@@ -42,6 +45,10 @@ def numpy_convexified(H, C, fixed):
         for k in range(CONVEXIFY_DECADES):
             if pd(H + base * 10.0**k * CtC):
                 return H + base * 10.0**k * CtC
+    deltas = max(np.abs(np.diag(H)).max(), 1e-8) * SHIFTS
+    for i, delta in enumerate(deltas):
+        if pd(H + delta * np.eye(len(H))):
+            return H + deltas[min(i + 1, len(deltas) - 1)] * np.eye(len(H))
     lam, V = np.linalg.eigh(H)
     lam = np.maximum(np.abs(lam), EIGEN_FLOOR * max(np.abs(lam).max(), 1e-3))
     return V @ np.diag(lam) @ V.T
@@ -60,9 +67,16 @@ CASES = {
         np.array([[0.0, 2.0, 1.0]]),
         [1],
     ),
-    "no rows: reflected, floored": (np.diag([10.0, -1e-9]), np.zeros((0, 2)), []),
-    "small spectrum: 1e-3 floor": (np.diag([0.01, -1e-12]), np.zeros((0, 2)), []),
-    "rows cannot fix it": (np.diag([1.0, -1.0]), np.array([[1.0, 0.0]]), []),
+    "no rows: the second shift": (np.diag([10.0, -1e-9]), np.zeros((0, 2)), []),
+    "no rows: a shift of 10^-1": (np.diag([1.0, -0.03]), np.zeros((0, 2)), []),
+    "rows cannot fix it: shifted": (np.diag([1.0, -1.0]), np.array([[1.0, 0.0]]), []),
+    # no diagonal to scale a shift by (the 1e-8 floor): reflected, floored
+    "zero diagonal: reflected": (np.array([[0.0, 1.0], [1.0, 0.0]]), np.zeros((0, 2)), []),
+    "small spectrum: 1e-3 floor": (
+        np.array([[0.0, 0.01], [0.01, 0.0]]),
+        np.zeros((0, 2)),
+        [],
+    ),
 }
 
 
@@ -73,6 +87,26 @@ def test_convexified_matches_a_numpy_reimplementation(name):
     expected = numpy_convexified(H, C, fixed)
     np.testing.assert_allclose(convexified(H.copy(), C, fixed), expected, rtol=1e-12, atol=0)
     assert np.linalg.eigvalsh(expected).min() > 0
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_the_bisection_finds_the_least_penalty_or_shift_of_a_scan_in_turn(seed):
+    """Random indefinite Hessians whose least penalty or shift lies anywhere on its grid
+    (each found by bisection) against the scan that tries each in turn."""
+    rng = np.random.default_rng(seed)
+    n = 6
+    Q = np.linalg.qr(rng.normal(size=(n, n)))[0]
+    lam = rng.uniform(0.1, 1.0, n)
+    lam[: rng.integers(1, 3)] = -(10.0 ** rng.uniform(-7, 0.5))  # one or two below zero
+    H = (Q * lam) @ Q.T
+    C = rng.normal(size=(rng.integers(0, 3), n))
+    fixed = np.flatnonzero(rng.random(n) < 0.2)
+    expected = numpy_convexified(H, C, fixed)
+    got = convexified(H.copy(), C, fixed)
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=0)
+    delta = got[0, 0] - H[0, 0]
+    if np.allclose(got - H, delta * np.eye(n), rtol=0, atol=1e-14):  # shifted: with margin
+        assert np.linalg.eigvalsh(got).min() >= (1.0 - 10.0**-SHIFT_STEP) * delta * (1 - 1e-9)
 
 
 # --- per-stage blocks: convex on the dynamics' null space ------------------------------------
@@ -189,10 +223,11 @@ def test_an_active_rows_penalty_keeps_the_step_on_that_active_set():
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_where_no_penalty_helps_the_commands_take_the_least_shift_that_does(seed):
+def test_where_no_penalty_helps_the_commands_take_the_shift_above_the_least_that_does(seed):
     """Indefinite along its active row's null space too (no penalty on the row can
-    help): ``delta I`` on every command block, ``delta`` the first of ``SHIFTS`` (times
-    the largest diagonal entry) whose condensed Hessian is positive definite, the
+    help): ``delta I`` on every command block, ``delta`` the one of ``SHIFTS`` (times the
+    largest diagonal entry) after the first whose condensed Hessian is positive definite
+    (the smallest eigenvalue then at least ``1 - 10**-SHIFT_STEP`` of the shift), the
     states' rows and the terminal block as they were."""
     rng = np.random.default_rng(seed)
     A, B = dynamics(seed)
@@ -217,7 +252,13 @@ def test_where_no_penalty_helps_the_commands_take_the_least_shift_that_does(seed
         Hd[:, NX:, NX:] += d * np.eye(NU)
         return np.linalg.eigvalsh(condensed(Hd, HT, A, B)).min() > 0
 
-    assert definite(delta) and (k == 0 or not definite(scale * SHIFTS[k - 1]))
+    least = scale * SHIFTS[k - 1]
+    assert k >= 1 and definite(least) and (k == 1 or not definite(scale * SHIFTS[k - 2]))
+    Hd = Hs.copy()
+    Hd[:, NX:, NX:] += delta * np.eye(NU)
+    # the condensed Hessian is H_c + delta I: its spectrum moves by delta
+    lowest = np.linalg.eigvalsh(condensed(Hd, HT, A, B)).min()
+    assert lowest >= (1.0 - 10.0**-SHIFT_STEP) * delta * (1 - 1e-9)
 
 
 def test_active_normals_against_a_loop_over_rows_and_bounds():

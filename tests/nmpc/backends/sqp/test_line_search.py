@@ -13,6 +13,8 @@ import pytest
 from aeromanip.nmpc.backends import SolveRequest
 from aeromanip.nmpc.backends.sqp.dense_qp import QpResult
 from aeromanip.nmpc.backends.sqp.solver import (
+    MAX_SOC,
+    SOC_MIN_RISE,
     _damping,
     _line_search,
 )
@@ -100,12 +102,16 @@ class MeritLine:
         return self.table[alpha]
 
 
-def search(model, viol0=0.0, mu=10.0, grad=-3.0):
+def search(model, viol0=0.0, mu=10.0, grad=-3.0, max_soc=MAX_SOC, counted=None):
     """``_line_search`` from cost 5 and row violation ``viol0`` along ``d = [2]``: the
-    merit is ``phi0 = 5 + mu viol0``, its slope ``2 grad - mu viol0``."""
+    merit is ``phi0 = 5 + mu viol0``, its slope ``2 grad - mu viol0``. The step length
+    and the corrected step; the count of corrections appended to ``counted``."""
     lin = SimpleNamespace(f=5.0, grad=np.array([grad]), c=np.array([viol0]),
                           lbc=np.array([-1.0]), ubc=np.array([0.0]))  # fmt: skip
-    return _line_search(model, np.zeros(1), np.array([2.0]), None, lin, mu)
+    alpha, soc, solved = _line_search(model, np.zeros(1), np.array([2.0]), None, lin, mu, max_soc)
+    if counted is not None:
+        counted.append(solved)
+    return alpha, soc
 
 
 def test_the_line_search_takes_the_first_step_with_sufficient_decrease_of_the_merit():
@@ -152,21 +158,45 @@ def test_the_line_search_takes_a_corrected_full_step_only_if_the_correction_solv
 def test_the_line_search_corrects_only_a_full_step_that_raised_the_violation():
     """IPOPT's rule: a full step rejected for its cost alone (the rows' violation not
     above the current one) is not corrected, only shortened; one whose violation rose
-    (by any amount) is. The corrections tried are counted."""
+    is, by any amount beyond rounding's (``SOC_MIN_RISE``). The corrections tried are
+    counted."""
     good = QpResult(np.array([1.9]), np.zeros(1), np.zeros(1), True, "")
 
     def tried(viol0, viol_full):
         model = MeritLine({1.0: (50.0, viol_full), 0.95: (0.0, 0.0), 0.5: (0.0, 0.0)})
-        calls = []
+        calls, counted = [], []
         model.correction = lambda v, d, lin, p: calls.append(d) or good
-        alpha, soc = search(model, viol0=viol0)
+        alpha, soc = search(model, viol0=viol0, counted=counted)
+        assert counted == [len(calls)]
         return len(calls), alpha, soc
 
     assert tried(0.0, 0.0) == (0, 0.5, None)  # the cost alone rejected it
     assert tried(0.5, 0.5) == (0, 0.5, None)  # violation as before: not raised
     assert tried(0.5, 0.4) == (0, 0.5, None)  # lowered
-    assert tried(0.5, 0.5 + 1e-12) == (1, 1.0, good)  # raised, however little
-    assert tried(0.0, 1e-12) == (1, 1.0, good)
+    assert tried(0.5, 0.5 + 2 * SOC_MIN_RISE) == (1, 1.0, good)  # raised, however little
+    assert tried(0.0, 2 * SOC_MIN_RISE) == (1, 1.0, good)
+    assert tried(0.0, SOC_MIN_RISE / 2) == (0, 0.5, None)  # rounding: not raised
+    assert tried(0.5, 0.5 + SOC_MIN_RISE / 2) == (0, 0.5, None)
+
+
+@pytest.mark.parametrize("max_soc", [0, 1, 3, MAX_SOC])
+def test_corrections_in_a_row_stop_at_max_soc_and_are_counted(max_soc):
+    """Each correction cuts the violation (by more than ``KAPPA_SOC``) and is still
+    rejected for its cost: the line search tries ``max_soc`` of them (``MAX_SOC`` the
+    most; a bounded solve passes what its budget has left), counts them, then backtracks."""
+    alphas = [0.95, 0.9, 0.85, 0.8, 0.75, 0.7]  # the corrected steps / d
+    assert len(alphas) > MAX_SOC
+    table = {1.0: (50.0, 1.0), 0.5: (0.0, 0.0)}
+    table.update({a: (50.0, 0.9 - 0.1 * k) for k, a in enumerate(alphas)})
+    model = MeritLine(table)
+    corrections = iter(alphas)
+    model.correction = lambda v, d, lin, p: QpResult(
+        np.array([2.0 * next(corrections)]), np.zeros(1), np.zeros(1), True, ""
+    )
+    counted = []
+    assert search(model, viol0=0.5, max_soc=max_soc, counted=counted) == (0.5, None)
+    assert counted == [max_soc]
+    assert model.tried == [1.0, *alphas[:max_soc], 0.5]
 
 
 def test_the_damping_grows_tenfold_after_a_short_step_and_fades_after_full_ones():

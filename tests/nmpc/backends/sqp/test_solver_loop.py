@@ -157,9 +157,9 @@ def test_the_merits_penalty_is_the_largest_multiplier_so_far_with_margin_and_flo
     seen = []
     real = sqp_module._line_search
 
-    def spy(model, v, d, p, lin, mu):
+    def spy(model, v, d, p, lin, mu, *rest):
         seen.append(mu)
-        return real(model, v, d, p, lin, mu)
+        return real(model, v, d, p, lin, mu, *rest)
 
     monkeypatch.setattr(sqp_module, "_line_search", spy)
     model = ScriptedModel(kkt=[1.0] * 4 + [0.0], lams=[0.0, 0.5, -0.2, -0.7])

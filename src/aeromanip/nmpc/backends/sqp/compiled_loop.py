@@ -28,7 +28,13 @@ from aeromanip.nmpc.backends.c_library import NATIVE_CFLAGS, CSources, entry_of,
 from aeromanip.nmpc.backends.cache import CacheEntry
 from aeromanip.nmpc.backends.codegen import library_of
 from aeromanip.nmpc.backends.sqp.condensed_qp import CondensedQpModel
-from aeromanip.nmpc.backends.sqp.convexify import CONVEXIFY_DECADES, EIGEN_FLOOR
+from aeromanip.nmpc.backends.sqp.convexify import (
+    CONVEXIFY_DECADES,
+    EIGEN_FLOOR,
+    SHIFT_COUNT,
+    SHIFT_FIRST,
+    SHIFT_STEP,
+)
 from aeromanip.nmpc.backends.sqp.dense_qp import CROSS_TOL, SCREEN_ROUNDS, SOLVERS
 
 HERE = Path(__file__).parent
@@ -55,7 +61,8 @@ DAQP_INCLUDES = (str(DAQP / "include"), str(DAQP / "include" / "daqp"))
 CONSTANTS = (
     "screen_rounds", "cross_tol", "exact_from_iteration", "armijo", "backtrack", "min_step",
     "damping_start", "damping_growth", "penalty_margin", "penalty_floor",
-    "convexify_decades", "eigen_floor", "max_soc", "kappa_soc",
+    "convexify_decades", "eigen_floor", "shift_first", "shift_step", "shift_count", "max_soc",
+    "kappa_soc", "soc_min_rise",
 )  # fmt: skip
 #: DAQP settings the loop passes on, in ``sqp_new``'s order (NaN: DAQP's default)
 DAQP_SETTINGS = (
@@ -111,7 +118,9 @@ def loop_settings(
     if daqp is None:
         return None
     given = {**loop_constants, "screen_rounds": SCREEN_ROUNDS, "cross_tol": CROSS_TOL,
-             "convexify_decades": CONVEXIFY_DECADES, "eigen_floor": EIGEN_FLOOR}  # fmt: skip
+             "convexify_decades": CONVEXIFY_DECADES, "eigen_floor": EIGEN_FLOOR,
+             "shift_first": SHIFT_FIRST, "shift_step": SHIFT_STEP,
+             "shift_count": SHIFT_COUNT}  # fmt: skip
     return daqp, np.array([float(given[k]) for k in CONSTANTS])
 
 

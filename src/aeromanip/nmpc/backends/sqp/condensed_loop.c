@@ -81,13 +81,13 @@ static int verdict(Sqp* s, const Problem* pb, const double* U, const double* lam
    _line_search): the last QP with its rows taken at the end of the last step tried (their
    values there in s->trial_c, viol1 their violation), up to max_soc in a row while each
    cuts the violation by kappa_soc; accepted (1) if a step passes the merit test, and
-   then it is in s->sd with its multipliers in lam_c, lam_u */
+   then it is in s->sd with its multipliers in lam_c, lam_u; *solved counts the QPs */
 static int corrected(Sqp* s, const Problem* pb, const double* U, double* memory,
                      double mu, double phi0, double descent, double viol1, double* lam_c,
-                     double* lam_u, int* failed) {
+                     double* lam_u, int max_soc, int* solved, int* failed) {
   int n = s->nU, nc = s->nc;
   const double* step = s->qd;
-  for (int k = 0; k < (int)s->k.max_soc; ++k) {
+  while (*solved < max_soc) {
     la_matvec(s->A, nc, n, step, s->Ad); /* before the QP writes s->sd */
     for (int i = 0; i < nc; ++i) {
       double cc = s->trial_c[i] - s->Ad[i];
@@ -96,6 +96,7 @@ static int corrected(Sqp* s, const Problem* pb, const double* U, double* memory,
     }
     QpOutcome soc = qp_solve(s, s->H, s->grad, s->A, s->lba, s->uba, s->lbx, s->ubx, memory,
                              s->sd, s->slam_a, s->slam_x);
+    ++*solved;
     double fs, vs;
     if (!soc.ok) return 0;
     if (merit(s, U, s->sd, pb->p, pb->lbc, pb->ubc, &fs, &vs)) {
@@ -116,9 +117,11 @@ static int corrected(Sqp* s, const Problem* pb, const double* U, double* memory,
 
 /* Armijo backtracking on the l1 merit f + mu * violations (solver.py: _line_search):
    the step length (0 if the model failed); *d becomes the corrected step if the full
-   step was accepted only with second-order corrections */
+   step was accepted only with second-order corrections (at most max_soc; *solved counts
+   them) */
 static double line_search(Sqp* s, const Problem* pb, const double* U, double f, double mu,
-                          double* memory, double* lam_c, double* lam_u, const double** d) {
+                          double* memory, double* lam_c, double* lam_u, const double** d,
+                          int max_soc, int* solved) {
   int n = s->nU, failed = 0;
   double viol0 = la_l1(s->c, pb->lbc, pb->ubc, s->nc), phi0 = f + mu * viol0;
   double slope = la_dot(s->grad, s->qd, n) - mu * viol0;
@@ -126,8 +129,9 @@ static double line_search(Sqp* s, const Problem* pb, const double* U, double f, 
   *d = s->qd;
   if (merit(s, U, s->qd, pb->p, pb->lbc, pb->ubc, &f1, &viol1)) return 0.0;
   if (f1 + mu * viol1 <= phi0 + s->k.armijo * descent) return 1.0;
-  if (viol1 > viol0) {
-    if (corrected(s, pb, U, memory, mu, phi0, descent, viol1, lam_c, lam_u, &failed)) {
+  if (viol1 > viol0 + s->k.soc_min_rise) {
+    if (corrected(s, pb, U, memory, mu, phi0, descent, viol1, lam_c, lam_u, max_soc, solved,
+                  &failed)) {
       *d = s->sd;
       return 1.0;
     }
@@ -209,7 +213,12 @@ int sqp_solve(Sqp* s, const double* opts, const double* p, const double* lbc,
     double penalty = s->k.penalty_margin * lam_top + s->k.penalty_floor;
     if (penalty > mu) mu = penalty;
     const double* d;
-    double alpha = line_search(s, &pb, U, f, mu, memory, lam_c, lam_u, &d);
+    /* a bounded solve counts its corrections as QPs */
+    int max_soc = (int)s->k.max_soc, corrections = 0;
+    if (pb.accept_at_max_iter && pb.max_iter - it < max_soc) max_soc = pb.max_iter - it;
+    double alpha =
+        line_search(s, &pb, U, f, mu, memory, lam_c, lam_u, &d, max_soc, &corrections);
+    if (pb.accept_at_max_iter) it += corrections;
     if (alpha == 0.0) {
       status = ST_MODEL_FAILED;
       break;
@@ -263,9 +272,10 @@ Sqp* sqp_new(const int* dims, const int* hier_row, const unsigned char* always,
   if (!s) return 0;
   s->nU = dims[0], s->nc = dims[1], s->nr = dims[2], s->nh = dims[3], s->np = dims[4];
   s->has_hess = hess != 0;
-  s->k = (Constants){consts[0], consts[1], consts[2], consts[3],  consts[4],  consts[5],
-                     consts[6], consts[7], consts[8], consts[9], consts[10], consts[11],
-                     consts[12], consts[13]};
+  s->k = (Constants){consts[0],  consts[1],  consts[2],  consts[3],  consts[4],  consts[5],
+                     consts[6],  consts[7],  consts[8],  consts[9],  consts[10], consts[11],
+                     consts[12], consts[13], consts[14], consts[15], consts[16],
+                     consts[17]};
   int ok = fn_new(&s->data, data, data_work) && fn_new(&s->merit, merit_fn, merit_work);
   if (s->has_hess) ok = ok && fn_new(&s->hess, hess, hess_work);
   size_t n = (size_t)s->nU, nc = (size_t)s->nc, nr = (size_t)s->nr, nh = (size_t)s->nh;

@@ -189,19 +189,57 @@ QpOutcome qp_solve(Sqp* s, const double* H, const double* g, const double* A,
 
 /* -- Hessians (condensed_qp.py: _hessian; convexify.py) ----------------------------- */
 
+/* into s->Hc: H + amount V (V = C'C of the active rows, plus the fixed variables' unit
+   diagonal), or H + amount I (V null) */
+static void modified(Sqp* s, const double* H, const double* V, double amount) {
+  int n = s->nU;
+  if (V)
+    for (size_t i = 0; i < (size_t)n * n; ++i) s->Hc[i] = H[i] + amount * V[i];
+  else {
+    memcpy(s->Hc, H, sizeof(double) * (size_t)n * n);
+    for (int j = 0; j < n; ++j) s->Hc[j + (size_t)j * n] += amount;
+  }
+}
+
+/* the least i < count whose amount base * 10^(first + step i) makes H + amount V (or
+   + amount I) positive definite, or -1. As convexify.least_passing: the last first, then
+   bisection (a larger amount makes it so too) */
+static int least_definite(Sqp* s, const double* H, const double* V, double base, double first,
+                          double step, int count) {
+  if (count <= 0) return -1;
+  modified(s, H, V, base * pow(10.0, first + step * (count - 1)));
+  if (!la_positive_definite(s->Hc, s->nU, s->L)) return -1;
+  int lo = -1, hi = count - 1; /* definite at hi; not at lo (or lo = -1) */
+  while (hi - lo > 1) {
+    int mid = (lo + hi) / 2;
+    modified(s, H, V, base * pow(10.0, first + step * mid));
+    if (la_positive_definite(s->Hc, s->nU, s->L)) hi = mid;
+    else lo = mid;
+  }
+  return hi;
+}
+
+/* H <- H + amount V (or + amount I) */
+static void take_modified(Sqp* s, double* H, const double* V, double amount) {
+  modified(s, H, V, amount);
+  memcpy(H, s->Hc, sizeof(double) * (size_t)s->nU * s->nU);
+}
+
 /* H positive definite as it is, or H + rho C'C for the active rows C (and the variables
-   at a bound), or H with its eigenvalues reflected */
+   at a bound), or H + delta I, or H with its eigenvalues reflected (convexify.py:
+   convexified) */
 static void convexify(Sqp* s, double* H, const double* lam_c, const double* lam_u) {
   int n = s->nU, nc = s->nc;
   if (la_positive_definite(H, n, s->L)) return;
+  double scale = 0.0;
+  for (int j = 0; j < n; ++j)
+    if (fabs(H[j + (size_t)j * n]) > scale) scale = fabs(H[j + (size_t)j * n]);
+  if (scale < 1e-8) scale = 1e-8;
   int nC = 0, nfixed = 0;
   for (int i = 0; i < nc; ++i) nC += lam_c[i] != 0.0;
   for (int j = 0; j < n; ++j) nfixed += lam_u[j] != 0.0;
   if (nC || nfixed) {
-    double scale = 0.0, norms = 0.0;
-    for (int j = 0; j < n; ++j)
-      if (fabs(H[j + (size_t)j * n]) > scale) scale = fabs(H[j + (size_t)j * n]);
-    if (scale < 1e-8) scale = 1e-8;
+    double norms = 0.0;
     int r = 0;
     for (int i = 0; i < nc; ++i) {
       if (lam_c[i] == 0.0) continue;
@@ -218,14 +256,18 @@ static void convexify(Sqp* s, double* H, const double* lam_c, const double* lam_
     la_gram(s->C, nC, n, 1.0, s->V, 0, s->T); /* C'C, then the fixed variables' diagonal */
     for (int j = 0; j < n; ++j)
       if (lam_u[j] != 0.0) s->V[j + (size_t)j * n] += 1.0;
-    for (int t = 0; t < s->k.convexify_decades; ++t) {
-      double rho = base * pow(10.0, t);
-      for (size_t i = 0; i < (size_t)n * n; ++i) s->Hc[i] = H[i] + rho * s->V[i];
-      if (la_positive_definite(s->Hc, n, s->L)) {
-        memcpy(H, s->Hc, sizeof(double) * (size_t)n * n);
-        return;
-      }
+    int i = least_definite(s, H, s->V, base, 0.0, 1.0, (int)s->k.convexify_decades);
+    if (i >= 0) {
+      take_modified(s, H, s->V, base * pow(10.0, i));
+      return;
     }
+  }
+  int count = (int)s->k.shift_count;
+  int i = least_definite(s, H, 0, scale, s->k.shift_first, s->k.shift_step, count);
+  if (i >= 0) { /* one step above the least (convexify.above_least) */
+    if (i + 1 < count) ++i;
+    take_modified(s, H, 0, scale * pow(10.0, s->k.shift_first + s->k.shift_step * i));
+    return;
   }
   double* lam = s->tmp;
   sqp_eigen_symmetric(H, n, lam, s->V, s->Hc);

@@ -221,8 +221,8 @@ class CondensedQpModel:
     ) -> np.ndarray:
         """The objective's Gauss-Newton Hessian, or its exact one ``Hf`` (if given) made
         positive definite (``convexify.convexified``: a penalty on the active rows' normals,
-        which keeps the step on that active set); plus the Gauss-Newton curvature of the
-        hierarchy's cost rows."""
+        which keeps the step on that active set, else a shift); plus the Gauss-Newton
+        curvature of the hierarchy's cost rows."""
         Hh = None
         if self.nh and Hf is None:  # the exact Hessian has the rows' curvature already
             lam_h = np.maximum(lam_c[self.hier_elem_row], 0.0)

@@ -1,7 +1,11 @@
-"""Hessian convexification for the SQP's QPs: a penalty on the active rows' normals
-(dense Hessians), or the Riccati recursion's pivots made positive definite (per-stage
+"""Hessian convexification for the SQP's QPs: a penalty on the active rows' normals, else
+a shift of the diagonal (dense Hessians, and the Riccati recursion's pivots of per-stage
 blocks of a problem with linear dynamics), or each block's eigenvalues reflected (for a
-QP solver that needs every block positive semi-definite)."""
+QP solver that needs every block positive semi-definite).
+
+The least penalty or shift on a grid that makes a matrix positive definite is found by
+bisection (``least_passing``): a larger one makes it so too, so the answer is the same as
+trying them in order, in about ``log2`` of the Cholesky factorisations."""
 
 from __future__ import annotations
 
@@ -11,8 +15,13 @@ import numpy as np
 
 CONVEXIFY_DECADES = 5  # penalties rho tried on the active normals: base * 10**(0..4)
 EIGEN_FLOOR = 1e-6  # reflected eigenvalues kept above this share of the largest (or 1e-3)
-#: the shifts ``delta`` tried on the commands' diagonal (times the largest diagonal entry)
-SHIFTS = 10.0 ** np.arange(-8.0, 4.5, 0.5)
+# the shifts ``delta`` tried on the (commands') diagonal, times its largest entry:
+# 10**(SHIFT_FIRST + SHIFT_STEP * i), i < SHIFT_COUNT (1e-8 to 1e4 by half decades)
+SHIFT_FIRST, SHIFT_STEP, SHIFT_COUNT = -8.0, 0.5, 25
+#: those shifts (Python's ``**`` is C's ``pow``, as in the compiled loop)
+SHIFTS = np.array([10.0 ** (SHIFT_FIRST + SHIFT_STEP * i) for i in range(SHIFT_COUNT)])
+#: the penalties' factors on their base
+PENALTY_FACTORS = np.array([10.0**t for t in range(CONVEXIFY_DECADES)])
 CONVEX_TOL = 1e-9  # an eigenvalue below -tol x the largest entry: an indefinite block
 #: a row or bound is active at an interior point's answer where its multiplier is above
 #: this share of the largest (at least 1): inactive ones fall to ~mu / slack
@@ -27,22 +36,63 @@ def is_positive_definite(H: np.ndarray) -> bool:
     return True
 
 
+def least_passing(count: int, passes: Callable[[int], bool]) -> int | None:
+    """The least ``i < count`` where ``passes(i)``, for a test that holds from some ``i``
+    on, or ``None``: the last ``i`` tried first, then bisection (``compiled_loop``'s
+    C does the same tests in the same order)."""
+    if count <= 0 or not passes(count - 1):
+        return None
+    lo, hi = -1, count - 1  # passes(hi); not passes(lo), or lo = -1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if passes(mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+def above_least(i: int) -> int:
+    """The shift taken where ``SHIFTS[i]`` is the least that makes a matrix definite: the
+    next one. The least leaves the smallest eigenvalue anywhere above 0 (a near-singular
+    QP, whose step rounding steers: a bounded solve's iterate differed by 4e-9 between
+    two builds of the same loop); one step up it is at least ``1 - 10**-SHIFT_STEP``
+    (0.68) of the shift, and the shift at most ``10**(2 SHIFT_STEP)`` (10) times the
+    least that would do."""
+    return min(i + 1, SHIFT_COUNT - 1)
+
+
+def shifted(H: np.ndarray, delta: float) -> np.ndarray:
+    """``H + delta I`` (a copy)."""
+    out = H.copy()
+    out.flat[:: H.shape[0] + 1] += delta
+    return out
+
+
 def convexified(H: np.ndarray, C: np.ndarray, fixed: np.ndarray) -> np.ndarray:
     """``H`` if positive definite; else ``H + rho C'C`` (plus ``rho`` on the ``fixed``
-    variables' diagonal) for the smallest ``rho`` in a few decades that makes it so; else
-    ``H`` with its eigenvalues reflected (``|lambda|``, floored)."""
+    variables' diagonal) for the smallest ``rho`` in a few decades that makes it so, which
+    keeps the step on that active set; else (the problem curves down along it) ``H +
+    delta I``, as IPOPT's inertia correction, with ``delta`` one step above the smallest
+    on a half-decade grid (``SHIFTS``, times the largest diagonal entry) that makes it
+    so (``above_least``); else ``H`` with its eigenvalues reflected (``|lambda|``,
+    floored). Each grid is searched by ``least_passing``."""
     if is_positive_definite(H):
         return H
+    scale = max(float(np.abs(np.diag(H)).max()), 1e-8)
     if C.shape[0] or fixed.size:
-        scale = max(float(np.abs(np.diag(H)).max()), 1e-8)
         norms = np.concatenate([np.einsum("ij,ij->i", C, C), np.ones(fixed.size)])
         base = scale / max(float(norms.mean()), 1e-12)
         CtC = C.T @ C
         CtC[fixed, fixed] += 1.0
-        for rho in base * 10.0 ** np.arange(CONVEXIFY_DECADES):
-            Hc = H + rho * CtC
-            if is_positive_definite(Hc):
-                return Hc
+        rhos = base * PENALTY_FACTORS
+        i = least_passing(rhos.size, lambda i: is_positive_definite(H + rhos[i] * CtC))
+        if i is not None:
+            return H + rhos[i] * CtC
+    deltas = scale * SHIFTS
+    i = least_passing(deltas.size, lambda i: is_positive_definite(shifted(H, deltas[i])))
+    if i is not None:
+        return shifted(H, deltas[above_least(i)])
     lam, V = np.linalg.eigh(H)
     lam = np.maximum(np.abs(lam), EIGEN_FLOOR * max(np.abs(lam).max(), 1e-3))
     return (V * lam) @ V.T
@@ -106,15 +156,16 @@ def reduced_convexified(
     positive definite exactly when every pivot of the Riccati recursion is (the Hessian
     in ``u_k`` once the later stages are minimised out, ``R_k + B' P_{k+1} B``): then
     the blocks come back as they are, indefinite or not. Else, as ``convexified`` does
-    for a dense Hessian, ``active()`` (``active_normals``; called only then) is added with
-    the smallest ``rho`` in a few decades that makes every pivot definite, which keeps the step on
-    that active set; failing that (the problem curves down along that active set),
-    ``delta I`` is added to every ``R_k`` with the smallest ``delta`` on a half-decade
-    grid (``SHIFTS``, times the blocks' largest diagonal entry) that makes every pivot
-    definite, as IPOPT's inertia correction adds ``delta_w I``: the step follows the
-    negative curvature with the least made-up curvature. Where none does, each
-    indefinite pivot's eigenvalues are reflected (``|lambda|``, floored) by a change of
-    ``R_k`` alone (Verschueren et al. 2017, "Sparsity preserving convexification").
+    for a dense Hessian, ``active()`` (``active_normals``; called only then) is added
+    with the smallest ``rho`` in a few decades that makes every pivot definite, which
+    keeps the step on that active set; failing that (the problem curves down along that
+    active set), ``delta I`` is added to every ``R_k``, ``delta`` one step above the
+    smallest on a half-decade grid (``SHIFTS``, times the blocks' largest diagonal entry)
+    that makes every pivot definite (``above_least``), as IPOPT's inertia correction adds
+    ``delta_w I``: the step follows the negative curvature with little made-up
+    curvature. Where none does, each indefinite pivot's eigenvalues are reflected
+    (``|lambda|``, floored) by a change of ``R_k`` alone (Verschueren et al. 2017,
+    "Sparsity preserving convexification").
     Reflected, a strict hierarchy's lower level crawled along the higher level's pinned
     rows where they curve down (the flight 25x faster at N = 20,
     ``benchmarks/bench_bounds_bind_n20.py``: 50 QPs, steps growing 1.2x a QP); shifted,
@@ -123,21 +174,33 @@ def reduced_convexified(
     the same in C)."""
     pivots = pivots or riccati_pivots
     AB = np.hstack(dynamics)
+
+    def definite(Hs: np.ndarray, HT: np.ndarray) -> bool:
+        return pivots(Hs, HT, AB, reflect=False) is not None
+
     if pivots(stage_blocks, terminal_block, AB, reflect=False) is not None:
         return stage_blocks, terminal_block
     CtC, CtC_T, mean_norm = active() if active is not None else (None, None, 0.0)
     scale = max(float(np.abs(np.diagonal(stage_blocks, axis1=1, axis2=2)).max()), 1e-8)
     if mean_norm > 0.0:
-        for rho in scale / mean_norm * 10.0 ** np.arange(CONVEXIFY_DECADES):
-            Hs, HT = stage_blocks + rho * CtC, terminal_block + rho * CtC_T
-            if pivots(Hs, HT, AB, reflect=False) is not None:
-                return Hs, HT
+        rhos = scale / mean_norm * PENALTY_FACTORS
+
+        def penalized(i: int) -> tuple[np.ndarray, np.ndarray]:
+            return stage_blocks + rhos[i] * CtC, terminal_block + rhos[i] * CtC_T
+
+        i = least_passing(rhos.size, lambda i: definite(*penalized(i)))
+        if i is not None:
+            return penalized(i)
     u = np.arange(AB.shape[0], stage_blocks.shape[1])  # the commands' diagonal
-    for delta in scale * SHIFTS:
+
+    def commands_shifted(i: int) -> np.ndarray:
         Hs = stage_blocks.copy()
-        Hs[:, u, u] += delta
-        if pivots(Hs, terminal_block, AB, reflect=False) is not None:
-            return Hs, terminal_block
+        Hs[:, u, u] += scale * SHIFTS[i]
+        return Hs
+
+    i = least_passing(SHIFTS.size, lambda i: definite(commands_shifted(i), terminal_block))
+    if i is not None:
+        return commands_shifted(above_least(i)), terminal_block
     reflected = pivots(stage_blocks, terminal_block, AB, reflect=True)
     assert reflected is not None  # reflecting, the recursion always ends
     return reflected, terminal_block

@@ -10,10 +10,12 @@ How it is built, and why:
   zig-zags: with ``hessian="auto"`` a solve switches to the exact Hessian of ``f`` at
   its first shortened step or 7th iteration. Where it is indefinite, a penalty on the
   active constraints' normals makes it positive definite without changing the step on
-  that active set (Newton's convergence kept); only where that fails are the
-  eigenvalues reflected. On the sparse model the test is on the Riccati recursion's
-  pivots, not the blocks: blocks may be indefinite where the problem is convex on the
-  dynamics' null space (``convexify.reduced_convexified``).
+  that active set (Newton's convergence kept); where that fails (the problem curves down
+  along the active set), the least shift ``delta I`` that does (IPOPT's inertia
+  correction); only where both fail are the eigenvalues reflected. On the sparse model
+  the test is on the Riccati recursion's pivots, not the blocks: blocks may be
+  indefinite where the problem is convex on the dynamics' null space
+  (``convexify.reduced_convexified``).
 * **The QP by the horizon's length.** Short horizons: the model ``x[k+1] = x[k] + dt u[k]``
   is linear, so the NLP is condensed exactly onto the commands (``condensed_qp``: a dense
   QP, DAQP on the rows that may bind). Long horizons: every stage keeps its variables
@@ -200,6 +202,9 @@ PENALTY_FLOOR = 1e-8  # and by at least this
 # most this many in a row, each while the last cut the rows' violation by this factor
 MAX_SOC = 4
 KAPPA_SOC = 0.99
+# tried where the full step raised the rows' l1 violation by more than this: rounding
+# (~1e-15 a row) must not decide, as a bounded solve counts its corrections
+SOC_MIN_RISE = 1e-10
 WARM_OPTION = 8  # the compiled loop's options: where "the multipliers are given" goes
 #: the loop's successful ends
 SOLVED = ("Solve_Succeeded", "Solved_To_Acceptable_Level", "Feasible_At_Maximum_Iterations")
@@ -208,7 +213,7 @@ LOOP_CONSTANTS = {
     "exact_from_iteration": EXACT_FROM_ITERATION, "armijo": ARMIJO, "backtrack": BACKTRACK,
     "min_step": MIN_STEP, "damping_start": DAMPING_START, "damping_growth": DAMPING_GROWTH,
     "penalty_margin": PENALTY_MARGIN, "penalty_floor": PENALTY_FLOOR,
-    "max_soc": MAX_SOC, "kappa_soc": KAPPA_SOC,
+    "max_soc": MAX_SOC, "kappa_soc": KAPPA_SOC, "soc_min_rise": SOC_MIN_RISE,
 }  # fmt: skip
 
 
@@ -434,7 +439,10 @@ class SqpBackend(Backend):
                 ok, status = True, "RTI step"
                 break
             mu = max(mu, PENALTY_MARGIN * np.abs(lam_c).max(initial=0.0) + PENALTY_FLOOR)
-            alpha, soc = _line_search(model, v, d, p, lin, mu)
+            bounded = bool(o["accept_at_max_iter"])  # corrections count as QPs
+            max_soc = min(MAX_SOC, max_iter - it) if bounded else MAX_SOC
+            alpha, soc, corrections = _line_search(model, v, d, p, lin, mu, max_soc)
+            it += corrections if bounded else 0
             if soc is not None:
                 d, lam_c, lam_v = soc.d, soc.lam_a, soc.lam_x
             v = v + alpha * d
@@ -515,21 +523,29 @@ def _damping(damping: float, alpha: float) -> float:
 
 
 def _line_search(
-    model: QpModel, v: np.ndarray, d: np.ndarray, p: np.ndarray, lin: Linearization, mu: float
-) -> tuple[float, QpResult | None]:
+    model: QpModel,
+    v: np.ndarray,
+    d: np.ndarray,
+    p: np.ndarray,
+    lin: Linearization,
+    mu: float,
+    max_soc: int = MAX_SOC,
+) -> tuple[float, QpResult | None, int]:
     """Armijo backtracking on the l1 merit ``f + mu * sum(violations)``: the step length,
-    and the corrected QP step if the full step was accepted only with second-order
-    corrections (a model's ``correction``, when it has one).
+    the corrected QP step if the full step was accepted only with second-order
+    corrections (a model's ``correction``, when it has one; at most ``max_soc`` in a
+    row), and the count of corrections solved.
 
     The corrections follow IPOPT (Wachter and Biegler 2006, Sec. 2.4): tried only when
-    the rejected full step raised the rows' violation (they fix the rows' curvature, so
-    a step rejected for the cost alone gains nothing from them: in the bench's ``fast``
-    case, 47 of 73 corrections of the weighted loop were such QPs, none accepted), each
-    taking the rows at the end of the last corrected step, up to ``MAX_SOC`` in a row
-    while each cuts the violation by ``KAPPA_SOC``. Where a strict hierarchy's lower level
-    moves along the higher level's curved rows, one correction left 1/20 of a long
-    step's violation and the line search cut the step to a sliver, 50 times in a row;
-    repeated, the corrections hold the rows and the level converges in 8-9 QPs."""
+    the rejected full step raised the rows' violation (beyond ``SOC_MIN_RISE``; they fix
+    the rows' curvature, so a step rejected for the cost alone gains nothing from them:
+    in the bench's ``fast`` case, 47 of 73 corrections of the weighted loop were such
+    QPs, none accepted), each taking the rows at the end of the last corrected step, up
+    to ``max_soc`` in a row while each cuts the violation by ``KAPPA_SOC``. Where a
+    strict hierarchy's lower level moves along the higher level's curved rows, one
+    correction left 1/20 of a long step's violation and the line search cut the step to
+    a sliver, 50 times in a row; repeated, the corrections hold the rows and the level
+    converges in 8-9 QPs."""
     viol = l1(lin.c, lin.lbc, lin.ubc)
     phi0 = lin.f + mu * viol
     slope = float(lin.grad @ d) - mu * viol
@@ -541,24 +557,26 @@ def _line_search(
 
     full, viol_full = trial(d, 1.0)
     if full:
-        return 1.0, None
+        return 1.0, None, 0
     correct = getattr(model, "correction", None)
-    if correct is not None and viol_full > viol:
+    solved = 0
+    if correct is not None and viol_full > viol + SOC_MIN_RISE:
         step, viol_step = d, viol_full
-        for _ in range(MAX_SOC):
+        while solved < max_soc:
             soc = correct(v, step, lin, p)
+            solved += 1
             if not soc.ok:
                 break
             accepted, viol_soc = trial(soc.d, 1.0)
             if accepted:
-                return 1.0, soc
+                return 1.0, soc, solved
             if viol_soc > KAPPA_SOC * viol_step:
                 break
             step, viol_step = soc.d, viol_soc
     alpha = BACKTRACK
     while not (trial(alpha * d, alpha)[0] or alpha < MIN_STEP):
         alpha *= BACKTRACK
-    return alpha, None
+    return alpha, None, solved
 
 
 @BACKENDS.register("sqp-rti")

@@ -21,8 +21,8 @@ enum { HESS_AUTO = 0, HESS_EXACT = 1, HESS_GN = 2 };
 typedef struct {
   double screen_rounds, cross_tol, exact_from_iteration, armijo, backtrack, min_step;
   double damping_start, damping_growth, penalty_margin, penalty_floor;
-  double convexify_decades, eigen_floor;
-  double max_soc, kappa_soc;
+  double convexify_decades, eigen_floor, shift_first, shift_step, shift_count;
+  double max_soc, kappa_soc, soc_min_rise;
 } Constants;
 
 typedef struct {
