@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from aeromanip.bench.controller_speed import bench_scenario
+from aeromanip.nmpc.backends.sqp import solver as solver_module
 from aeromanip.nmpc.backends.sqp.solver import DEFAULTS, SqpBackend
 from aeromanip.nmpc.controller import Controller
 
@@ -69,11 +70,12 @@ def _counting_qps(backend: SqpBackend) -> list[str]:
 @pytest.mark.parametrize("level", [0, 1])
 def test_an_iterate_out_of_iterations_is_the_answer_exactly_where_its_rows_hold(recorded, level):
     """Every QP counts, second-order corrections too: at most ``BUDGET`` a solve. A solve
-    whose unbounded twin made no correction reaches the same iterate, only judged
-    otherwise."""
+    whose unbounded twin (its Hessians convexified alike) made no correction reaches the
+    same iterate, only judged otherwise."""
     tr, requests = recorded[level]
     bounded = SqpBackend(tr, BOUNDED)
     plain = SqpBackend(tr, {**BOUNDED, "accept_at_max_iter": False})
+    plain.model.opts["accept_at_max_iter"] = True  # its QPs convexified as bounded ones
     qps, plain_qps = _counting_qps(bounded), _counting_qps(plain)
     tol = DEFAULTS["constr_viol_tol"]
     judged = {True: 0, False: 0}
@@ -128,3 +130,21 @@ def test_a_bounded_hierarchy_spends_at_most_its_budget_per_level():
                 assert status == ("ok" if all(solved) else "partial")
             assert any(s == "partial" for s, _ in statuses)
     assert spent[True] == budget < spent[False]
+
+
+def test_only_a_bounded_solve_ignores_a_rise_of_rounding_before_a_correction(recorded, monkeypatch):
+    """A bounded solve counts its corrections, so rounding must not decide them: its line
+    searches pass ``SOC_MIN_RISE``; a converged solve's pass 0 (corrections at any rise)."""
+    seen = []
+    real = solver_module._line_search
+
+    def spy(model, v, d, p, lin, mu, max_soc, min_rise):
+        seen.append(min_rise)
+        return real(model, v, d, p, lin, mu, max_soc, min_rise)
+
+    monkeypatch.setattr(solver_module, "_line_search", spy)
+    tr, requests = recorded[1]
+    for bounded, want in ((True, solver_module.SOC_MIN_RISE), (False, 0.0)):
+        seen.clear()
+        SqpBackend(tr, {**BOUNDED, "accept_at_max_iter": bounded}).solve(requests[0])
+        assert seen and set(seen) == {want}

@@ -2,12 +2,13 @@
 
 Dense: against a NumPy re-implementation of the rule of ``convexify.py`` (``rho = base
 10^k``, the smallest that makes ``H + rho C'C`` positive definite, each tried in turn;
-otherwise the ``delta`` of ``SHIFTS`` (times the largest diagonal entry) one above the
-smallest that makes ``H + delta I`` so; otherwise ``|lambda|`` floored at ``EIGEN_FLOOR
-max(|lambda|max, 1e-3)``), with ``numpy.linalg.eigvalsh`` as the positive-definiteness
-test. Per-stage blocks: against the condensed Hessian built here by
-eliminating the states explicitly (independent of the Riccati recursion the module uses),
-and the equality-constrained step solved whole."""
+otherwise, where the SQP shifts (a bounded solve), the ``delta`` of ``SHIFTS`` (times the
+largest diagonal entry) one above the smallest that makes ``H + delta I`` so; otherwise
+``|lambda|`` floored at ``EIGEN_FLOOR max(|lambda|max, 1e-3)``), with
+``numpy.linalg.eigvalsh`` as the positive-definiteness test. Per-stage blocks: against
+the condensed Hessian built here by eliminating the states explicitly (independent of
+the Riccati recursion the module uses), and the equality-constrained step solved
+whole."""
 
 import numpy as np
 import pytest
@@ -27,7 +28,7 @@ from aeromanip.nmpc.backends.sqp.convexify import (
 from aeromanip.nmpc.backends.sqp.ocp_ipm import CompiledPivots
 
 
-def numpy_convexified(H, C, fixed):
+def numpy_convexified(H, C, fixed, shift):
     """The rule of ``convexify.convexified``, re-done with ``eigvalsh`` as the PD test."""
 
     def pd(M):
@@ -45,7 +46,7 @@ def numpy_convexified(H, C, fixed):
         for k in range(CONVEXIFY_DECADES):
             if pd(H + base * 10.0**k * CtC):
                 return H + base * 10.0**k * CtC
-    deltas = max(np.abs(np.diag(H)).max(), 1e-8) * SHIFTS
+    deltas = max(np.abs(np.diag(H)).max(), 1e-8) * SHIFTS if shift else []
     for i, delta in enumerate(deltas):
         if pd(H + delta * np.eye(len(H))):
             return H + deltas[min(i + 1, len(deltas) - 1)] * np.eye(len(H))
@@ -67,9 +68,9 @@ CASES = {
         np.array([[0.0, 2.0, 1.0]]),
         [1],
     ),
-    "no rows: the second shift": (np.diag([10.0, -1e-9]), np.zeros((0, 2)), []),
+    "no rows: the second shift, or reflected": (np.diag([10.0, -1e-9]), np.zeros((0, 2)), []),
     "no rows: a shift of 10^-1": (np.diag([1.0, -0.03]), np.zeros((0, 2)), []),
-    "rows cannot fix it: shifted": (np.diag([1.0, -1.0]), np.array([[1.0, 0.0]]), []),
+    "rows cannot fix it: shifted or reflected": (np.diag([1.0, -1.0]), np.array([[1.0, 0.0]]), []),
     # no diagonal to scale a shift by (the 1e-8 floor): reflected, floored
     "zero diagonal: reflected": (np.array([[0.0, 1.0], [1.0, 0.0]]), np.zeros((0, 2)), []),
     "small spectrum: 1e-3 floor": (
@@ -80,12 +81,14 @@ CASES = {
 }
 
 
+@pytest.mark.parametrize("shift", [True, False])
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_convexified_matches_a_numpy_reimplementation(name):
+def test_convexified_matches_a_numpy_reimplementation(name, shift):
     H, C, fixed = CASES[name]
     fixed = np.array(fixed, dtype=int)
-    expected = numpy_convexified(H, C, fixed)
-    np.testing.assert_allclose(convexified(H.copy(), C, fixed), expected, rtol=1e-12, atol=0)
+    expected = numpy_convexified(H, C, fixed, shift)
+    got = convexified(H.copy(), C, fixed, shift)
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=0)
     assert np.linalg.eigvalsh(expected).min() > 0
 
 
@@ -101,8 +104,8 @@ def test_the_bisection_finds_the_least_penalty_or_shift_of_a_scan_in_turn(seed):
     H = (Q * lam) @ Q.T
     C = rng.normal(size=(rng.integers(0, 3), n))
     fixed = np.flatnonzero(rng.random(n) < 0.2)
-    expected = numpy_convexified(H, C, fixed)
-    got = convexified(H.copy(), C, fixed)
+    expected = numpy_convexified(H, C, fixed, True)
+    got = convexified(H.copy(), C, fixed, True)
     np.testing.assert_allclose(got, expected, rtol=1e-12, atol=0)
     delta = got[0, 0] - H[0, 0]
     if np.allclose(got - H, delta * np.eye(n), rtol=0, atol=1e-14):  # shifted: with margin

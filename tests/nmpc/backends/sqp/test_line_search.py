@@ -102,13 +102,15 @@ class MeritLine:
         return self.table[alpha]
 
 
-def search(model, viol0=0.0, mu=10.0, grad=-3.0, max_soc=MAX_SOC, counted=None):
+def search(model, viol0=0.0, mu=10.0, grad=-3.0, max_soc=MAX_SOC, counted=None, min_rise=0.0):
     """``_line_search`` from cost 5 and row violation ``viol0`` along ``d = [2]``: the
     merit is ``phi0 = 5 + mu viol0``, its slope ``2 grad - mu viol0``. The step length
     and the corrected step; the count of corrections appended to ``counted``."""
     lin = SimpleNamespace(f=5.0, grad=np.array([grad]), c=np.array([viol0]),
                           lbc=np.array([-1.0]), ubc=np.array([0.0]))  # fmt: skip
-    alpha, soc, solved = _line_search(model, np.zeros(1), np.array([2.0]), None, lin, mu, max_soc)
+    alpha, soc, solved = _line_search(
+        model, np.zeros(1), np.array([2.0]), None, lin, mu, max_soc, min_rise
+    )
     if counted is not None:
         counted.append(solved)
     return alpha, soc
@@ -158,25 +160,28 @@ def test_the_line_search_takes_a_corrected_full_step_only_if_the_correction_solv
 def test_the_line_search_corrects_only_a_full_step_that_raised_the_violation():
     """IPOPT's rule: a full step rejected for its cost alone (the rows' violation not
     above the current one) is not corrected, only shortened; one whose violation rose
-    is, by any amount beyond rounding's (``SOC_MIN_RISE``). The corrections tried are
-    counted."""
+    is, by any amount (a bounded solve's: beyond rounding's, ``SOC_MIN_RISE``). The
+    corrections tried are counted."""
     good = QpResult(np.array([1.9]), np.zeros(1), np.zeros(1), True, "")
 
-    def tried(viol0, viol_full):
+    def tried(viol0, viol_full, min_rise=0.0):
         model = MeritLine({1.0: (50.0, viol_full), 0.95: (0.0, 0.0), 0.5: (0.0, 0.0)})
         calls, counted = [], []
         model.correction = lambda v, d, lin, p: calls.append(d) or good
-        alpha, soc = search(model, viol0=viol0, counted=counted)
+        alpha, soc = search(model, viol0=viol0, counted=counted, min_rise=min_rise)
         assert counted == [len(calls)]
         return len(calls), alpha, soc
 
     assert tried(0.0, 0.0) == (0, 0.5, None)  # the cost alone rejected it
     assert tried(0.5, 0.5) == (0, 0.5, None)  # violation as before: not raised
     assert tried(0.5, 0.4) == (0, 0.5, None)  # lowered
-    assert tried(0.5, 0.5 + 2 * SOC_MIN_RISE) == (1, 1.0, good)  # raised, however little
-    assert tried(0.0, 2 * SOC_MIN_RISE) == (1, 1.0, good)
-    assert tried(0.0, SOC_MIN_RISE / 2) == (0, 0.5, None)  # rounding: not raised
-    assert tried(0.5, 0.5 + SOC_MIN_RISE / 2) == (0, 0.5, None)
+    assert tried(0.5, 0.5 + 1e-15) == (1, 1.0, good)  # raised, however little
+    assert tried(0.0, 1e-15) == (1, 1.0, good)
+    bounded = SOC_MIN_RISE
+    assert tried(0.5, 0.5 + 2 * bounded, bounded) == (1, 1.0, good)
+    assert tried(0.0, 2 * bounded, bounded) == (1, 1.0, good)
+    assert tried(0.0, bounded / 2, bounded) == (0, 0.5, None)  # rounding: not raised
+    assert tried(0.5, 0.5 + bounded / 2, bounded) == (0, 0.5, None)
 
 
 @pytest.mark.parametrize("max_soc", [0, 1, 3, MAX_SOC])

@@ -129,7 +129,8 @@ static double line_search(Sqp* s, const Problem* pb, const double* U, double f, 
   *d = s->qd;
   if (merit(s, U, s->qd, pb->p, pb->lbc, pb->ubc, &f1, &viol1)) return 0.0;
   if (f1 + mu * viol1 <= phi0 + s->k.armijo * descent) return 1.0;
-  if (viol1 > viol0 + s->k.soc_min_rise) {
+  /* a bounded solve's corrections count: rounding must not decide them */
+  if (viol1 > viol0 + (pb->accept_at_max_iter ? s->k.soc_min_rise : 0.0)) {
     if (corrected(s, pb, U, memory, mu, phi0, descent, viol1, lam_c, lam_u, max_soc, solved,
                   &failed)) {
       *d = s->sd;
@@ -159,7 +160,8 @@ static int linearize(Sqp* s, const double* U, const double* p, double* f) {
 static int qp_step(Sqp* s, const Problem* pb, const double* U, double* lam_c, double* lam_u,
                    double* memory, int exact, double damping, SqpInfo* info) {
   int n = s->nU, nc = s->nc;
-  if (hessian(s, U, pb->p, lam_c, lam_u, exact, pb->regularization, damping))
+  if (hessian(s, U, pb->p, lam_c, lam_u, exact, pb->regularization, damping,
+              pb->accept_at_max_iter))
     return ST_MODEL_FAILED;
   for (int i = 0; i < nc; ++i) {
     s->lba[i] = pb->lbc[i] - s->c[i];

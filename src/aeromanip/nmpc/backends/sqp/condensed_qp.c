@@ -226,9 +226,10 @@ static void take_modified(Sqp* s, double* H, const double* V, double amount) {
 }
 
 /* H positive definite as it is, or H + rho C'C for the active rows C (and the variables
-   at a bound), or H + delta I, or H with its eigenvalues reflected (convexify.py:
-   convexified) */
-static void convexify(Sqp* s, double* H, const double* lam_c, const double* lam_u) {
+   at a bound), or (if shift) H + delta I, or H with its eigenvalues reflected
+   (convexify.py: convexified) */
+static void convexify(Sqp* s, double* H, const double* lam_c, const double* lam_u,
+                      int shift) {
   int n = s->nU, nc = s->nc;
   if (la_positive_definite(H, n, s->L)) return;
   double scale = 0.0;
@@ -262,7 +263,7 @@ static void convexify(Sqp* s, double* H, const double* lam_c, const double* lam_
       return;
     }
   }
-  int count = (int)s->k.shift_count;
+  int count = shift ? (int)s->k.shift_count : 0;
   int i = least_definite(s, H, 0, scale, s->k.shift_first, s->k.shift_step, count);
   if (i >= 0) { /* one step above the least (convexify.above_least) */
     if (i + 1 < count) ++i;
@@ -293,12 +294,13 @@ static void convexify(Sqp* s, double* H, const double* lam_c, const double* lam_
 /* the QP's Hessian at the iterate: Gauss-Newton (plus the hierarchy rows' curvature) or
    the exact one convexified; regularised and damped on the diagonal */
 int hessian(Sqp* s, const double* U, const double* p, const double* lam_c,
-                   const double* lam_u, int exact, double regularization, double damping) {
+                   const double* lam_u, int exact, double regularization, double damping,
+                   int shift) {
   int n = s->nU;
   s->factor_valid = 0;
   if (exact && s->has_hess) {
     if (fn_call(&s->hess, U, p, lam_c, s->H, 0, 0, 0, 0)) return 1;
-    convexify(s, s->H, lam_c, lam_u);
+    convexify(s, s->H, lam_c, lam_u, shift);
   } else {
     la_gram(s->J, s->nr, n, 2.0, s->H, 0, s->T);
     if (s->nh) {

@@ -230,7 +230,8 @@ class CondensedQpModel:
             Hh = 2.0 * (Jw.T @ Jw)
         if Hf is not None:
             H = Hf.reshape(self.nU, self.nU, order="F").copy()
-            return convexified(H, A[lam_c != 0.0], np.flatnonzero(lam_u != 0.0))
+            fixed = np.flatnonzero(lam_u != 0.0)
+            return convexified(H, A[lam_c != 0.0], fixed, self.opts["accept_at_max_iter"])
         H = J.T @ J
         H *= 2.0
         if Hh is not None:

@@ -11,8 +11,10 @@ How it is built, and why:
   its first shortened step or 7th iteration. Where it is indefinite, a penalty on the
   active constraints' normals makes it positive definite without changing the step on
   that active set (Newton's convergence kept); where that fails (the problem curves down
-  along the active set), the least shift ``delta I`` that does (IPOPT's inertia
-  correction); only where both fail are the eigenvalues reflected. On the sparse model
+  along the active set), the eigenvalues are reflected, or in a bounded solve
+  (``accept_at_max_iter``) a shift ``delta I`` makes it so (IPOPT's inertia correction:
+  a few Cholesky factorisations instead of an eigendecomposition,
+  ``convexify.convexified``). On the sparse model
   the test is on the Riccati recursion's pivots, not the blocks: blocks may be
   indefinite where the problem is convex on the dynamics' null space
   (``convexify.reduced_convexified``).
@@ -202,8 +204,10 @@ PENALTY_FLOOR = 1e-8  # and by at least this
 # most this many in a row, each while the last cut the rows' violation by this factor
 MAX_SOC = 4
 KAPPA_SOC = 0.99
-# tried where the full step raised the rows' l1 violation by more than this: rounding
-# (~1e-15 a row) must not decide, as a bounded solve counts its corrections
+# a bounded solve, which counts its corrections, tries one where the full step raised the
+# rows' l1 violation by more than this: rounding (~1e-15 a row) must not decide its QPs.
+# A converged solve tries them at any rise (in the stress bench's ``clearance`` case 20
+# of 32 corrections at rises below 1e-12 were accepted; without them two steps took 50 QPs)
 SOC_MIN_RISE = 1e-10
 WARM_OPTION = 8  # the compiled loop's options: where "the multipliers are given" goes
 #: the loop's successful ends
@@ -441,7 +445,8 @@ class SqpBackend(Backend):
             mu = max(mu, PENALTY_MARGIN * np.abs(lam_c).max(initial=0.0) + PENALTY_FLOOR)
             bounded = bool(o["accept_at_max_iter"])  # corrections count as QPs
             max_soc = min(MAX_SOC, max_iter - it) if bounded else MAX_SOC
-            alpha, soc, corrections = _line_search(model, v, d, p, lin, mu, max_soc)
+            min_rise = SOC_MIN_RISE if bounded else 0.0
+            alpha, soc, corrections = _line_search(model, v, d, p, lin, mu, max_soc, min_rise)
             it += corrections if bounded else 0
             if soc is not None:
                 d, lam_c, lam_v = soc.d, soc.lam_a, soc.lam_x
@@ -530,6 +535,7 @@ def _line_search(
     lin: Linearization,
     mu: float,
     max_soc: int = MAX_SOC,
+    min_rise: float = 0.0,
 ) -> tuple[float, QpResult | None, int]:
     """Armijo backtracking on the l1 merit ``f + mu * sum(violations)``: the step length,
     the corrected QP step if the full step was accepted only with second-order
@@ -537,7 +543,7 @@ def _line_search(
     row), and the count of corrections solved.
 
     The corrections follow IPOPT (Wachter and Biegler 2006, Sec. 2.4): tried only when
-    the rejected full step raised the rows' violation (beyond ``SOC_MIN_RISE``; they fix
+    the rejected full step raised the rows' violation (beyond ``min_rise``; they fix
     the rows' curvature, so a step rejected for the cost alone gains nothing from them:
     in the bench's ``fast`` case, 47 of 73 corrections of the weighted loop were such
     QPs, none accepted), each taking the rows at the end of the last corrected step, up
@@ -560,7 +566,7 @@ def _line_search(
         return 1.0, None, 0
     correct = getattr(model, "correction", None)
     solved = 0
-    if correct is not None and viol_full > viol + SOC_MIN_RISE:
+    if correct is not None and viol_full > viol + min_rise:
         step, viol_step = d, viol_full
         while solved < max_soc:
             soc = correct(v, step, lin, p)

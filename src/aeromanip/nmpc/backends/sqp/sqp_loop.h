@@ -74,7 +74,7 @@ QpOutcome qp_solve(Sqp* s, const double* H, const double* g, const double* A,
                    const double* lba, const double* uba, const double* lbx, const double* ubx,
                    double* memory, double* d, double* lam_a, double* lam_x);
 int hessian(Sqp* s, const double* U, const double* p, const double* lam_c,
-            const double* lam_u, int exact, double regularization, double damping);
+            const double* lam_u, int exact, double regularization, double damping, int shift);
 
 /* the loop's entry points (condensed_loop.c) */
 Sqp* sqp_new(const int* dims, const int* hier_row, const unsigned char* always,
