@@ -82,8 +82,8 @@ def convexified(H: np.ndarray, C: np.ndarray, fixed: np.ndarray, shift: bool = F
     Cholesky factorisations (18 us each at 70 variables), a reflection an
     eigendecomposition (330 us), and a bounded solve's QPs must each be cheap. A
     converged solve reflects: the shift adds curvature to every direction, flat ones too,
-    and along a flat valley its steps crawl (the flight's hardest level 60 QPs instead of
-    24, four steps of the stress bench's ``clearance`` case 50 instead of 6-24)."""
+    and along a flat valley its steps crawl (the flight's hardest level took 60 QPs
+    instead of 24, its exported worst step 10.5 ms instead of 5.8)."""
     if is_positive_definite(H):
         return H
     scale = max(float(np.abs(np.diag(H)).max()), 1e-8)
