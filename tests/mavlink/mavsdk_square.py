@@ -82,8 +82,10 @@ async def fly_square(drone, telemetry: TelemetryAsync, seen: dict, loop) -> None
     await offboard.start()  # as MAVSDK's example: one setpoint, then start
     seen["phases"]["offboard"] = loop.time()
     start = (await telemetry.position_velocity_ned()).position
+    seen["legs"] = []  # when each side's setpoint was sent (a loaded machine sleeps long)
     for north, east in SQUARE:
         await offboard.set_velocity_ned(VelocityNedYaw(north, east, 0.0, heading))
+        seen["legs"].append(loop.time())
         await asyncio.sleep(SIDE_S)
     seen["phases"]["square_done"] = loop.time()
     back = PositionNedYaw(start.north_m, start.east_m, start.down_m, heading)
