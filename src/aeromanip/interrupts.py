@@ -53,6 +53,21 @@ def deferred() -> Iterator[None]:
     raise_if_interrupted()
 
 
+@contextlib.contextmanager
+def interruptible() -> Iterator[None]:
+    """Within ``deferred()`` blocks, a block a signal stops at once again (one that came
+    since the deferral began stops it as it starts). Wrap the work that may be cut short
+    in it and its ``except RunInterrupted`` outside it: a signal anywhere after the block
+    is then remembered, not raised between the handler and the code that keeps the run."""
+    saved = _deferring[:]
+    _deferring.clear()
+    try:
+        raise_if_interrupted()
+        yield
+    finally:
+        _deferring.extend(saved)
+
+
 def interrupted() -> int | None:
     """The signal received, if any (until ``clear()``)."""
     return _pending[0] if _pending else None

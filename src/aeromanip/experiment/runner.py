@@ -33,7 +33,7 @@ from aeromanip.experiment.runlog import (
     write_summary,
 )
 from aeromanip.experiment.scenario import MAX_BOUND_VIOLATION, Scenario
-from aeromanip.interrupts import RunInterrupted, deferred
+from aeromanip.interrupts import RunInterrupted, deferred, interruptible
 from aeromanip.interrupts import clear as clear_interrupts
 from aeromanip.robot.urdf_export import robot_to_urdf
 from aeromanip.sim.mjcf import robot_to_mjcf
@@ -182,26 +182,36 @@ def run_scenarios(
     the caller to act on; ``out_dir`` is where the run lies, the staging directory if it
     could not be moved into place)."""
     result = RunResult()
-    with RunDirectory(out_dir) as rd:
-        try:
+    try:
+        with deferred(), RunDirectory(out_dir) as rd:  # a signal after the flight waits
+            _fly_variants(result, scenarios, rd.staging, progress, figures)
+            _commit(result, scenarios, rd)  # what was flown is written and moved whole
+    except RunInterrupted as e:
+        if result.out_dir is None:  # it came before the run directory was made
+            raise
+        result.interrupted = result.interrupted or e  # the run is in place all the same
+        clear_interrupts()
+    return result
+
+
+def _fly_variants(
+    result: RunResult, scenarios: dict[str, Scenario], staging: Path, progress: bool, figures: bool
+) -> None:
+    """Fly every variant into ``staging``; a signal or a refused write stops it there,
+    recorded in ``result``."""
+    try:
+        with interruptible():
             for variant, sc in scenarios.items():
-                summary = run_one(sc, _variant_dir(rd.staging, variant), progress, figures)
+                summary = run_one(sc, _variant_dir(staging, variant), progress, figures)
                 result.summaries[variant] = summary
             if figures and len(scenarios) > 1:
-                logs = {v: RunLog.load(rd.staging / v) for v in scenarios}
-                plot_comparison(logs, rd.staging / "figures")
-        except RunInterrupted as e:
-            result.interrupted = e
-            clear_interrupts()  # handled here: the run is kept, the caller decides
-        except OSError as e:
-            result.io_error = e
-        try:
-            with deferred():  # what was flown is written and moved into place whole
-                _commit(result, scenarios, rd)
-        except RunInterrupted as e:  # it came meanwhile: the run is in place all the same
-            result.interrupted = result.interrupted or e
-            clear_interrupts()
-    return result
+                logs = {v: RunLog.load(staging / v) for v in scenarios}
+                plot_comparison(logs, staging / "figures")
+    except RunInterrupted as e:
+        result.interrupted = e
+        clear_interrupts()  # handled here: the run is kept, the caller decides
+    except OSError as e:
+        result.io_error = e
 
 
 def _commit(result: RunResult, scenarios: dict[str, Scenario], rd: RunDirectory) -> None:

@@ -16,7 +16,7 @@ from aeromanip.experiment.rundir import RunDirectory
 from aeromanip.experiment.runlog import LOG_FILE, RunLog, write_summary
 from aeromanip.experiment.runner import write_static_files
 from aeromanip.experiment.scenario import Scenario
-from aeromanip.interrupts import RunInterrupted, deferred
+from aeromanip.interrupts import RunInterrupted, deferred, interruptible
 from aeromanip.interrupts import clear as clear_interrupts
 from aeromanip.mavlink.sitl import STATE_HZ, SitlAutopilot
 
@@ -32,28 +32,28 @@ def run_sitl(
     truth summary and the signal (if one stopped it)."""
     sitl = SitlAutopilot(sc, link, state_hz)
     stopped: RunInterrupted | None = None
-    with RunDirectory(out) as rd:
-        write_static_files(sc, rd.staging)
+    with deferred(), RunDirectory(out) as rd:  # a signal after the run waits
         meta = run_meta(sc) | {"sim": "sitl", "link": link}
         try:
-            with LogWriter(rd.staging, sitl.columns(), meta) as writer:
-                sitl.run(writer.write, max_time_s)
+            with interruptible():
+                write_static_files(sc, rd.staging)
+                with LogWriter(rd.staging, sitl.columns(), meta) as writer:
+                    sitl.run(writer.write, max_time_s)
         except RunInterrupted as e:
             stopped = e
             clear_interrupts()
         finally:
             sitl.close()
-        with deferred():
-            summary: dict[str, Any] = {"scenario": sc.name, "sim": "sitl", "link": link}
-            if (rd.staging / LOG_FILE).is_file() and len(log := RunLog.load(rd.staging)):
-                summary |= log.summary()
-            summary.update(
-                interrupted=stopped is not None,
-                sitl_time_s=sitl.t,
-                overruns=sitl.overruns,
-                received=dict(sorted(sitl.received.items())),
-                events=[{"t": e.t, "text": e.text} for e in sitl.vehicle.events],
-            )
-            write_summary(rd.staging, summary)
-            rd.commit()
+        summary: dict[str, Any] = {"scenario": sc.name, "sim": "sitl", "link": link}
+        if (rd.staging / LOG_FILE).is_file() and len(log := RunLog.load(rd.staging)):
+            summary |= log.summary()
+        summary.update(
+            interrupted=stopped is not None,
+            sitl_time_s=sitl.t,
+            overruns=sitl.overruns,
+            received=dict(sorted(sitl.received.items())),
+            events=[{"t": e.t, "text": e.text} for e in sitl.vehicle.events],
+        )
+        write_summary(rd.staging, summary)
+        rd.commit()
     return summary, stopped

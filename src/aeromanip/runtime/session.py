@@ -20,7 +20,7 @@ from aeromanip.experiment.plots import plot_run
 from aeromanip.experiment.rundir import RunDirectory
 from aeromanip.experiment.runlog import LOG_FILE, RunLog, write_summary
 from aeromanip.experiment.runner import summarize, write_static_files
-from aeromanip.interrupts import RunInterrupted, deferred
+from aeromanip.interrupts import RunInterrupted, deferred, interruptible
 from aeromanip.interrupts import clear as clear_interrupts
 from aeromanip.runtime.loop import RUNTIME_COLUMNS, RealtimeFlight
 from aeromanip.runtime.transport import LinkError
@@ -50,13 +50,14 @@ def fly_session(
     """Fly ``flight`` into run directory ``out``; ``link`` is recorded in the summary."""
     sc = flight.sc
     error, interrupted, io_error = None, None, None
-    with RunDirectory(out) as rd:
-        write_static_files(sc, rd.staging)
+    with deferred(), RunDirectory(out) as rd:  # a signal after the flight waits
         columns = [*log_columns(sc, _NoSimulator()), *RUNTIME_COLUMNS]  # type: ignore[arg-type]
         meta = run_meta(sc) | {"sim": "vehicle", "link": link}
         try:
-            with LogWriter(rd.staging, columns, meta) as writer:
-                flight.fly(writer.write)
+            with interruptible():
+                write_static_files(sc, rd.staging)
+                with LogWriter(rd.staging, columns, meta) as writer:
+                    flight.fly(writer.write)
         except LinkError as e:
             error = e
         except RunInterrupted as e:
@@ -64,17 +65,16 @@ def fly_session(
             clear_interrupts()
         except OSError as e:
             io_error = e
-        with deferred():
-            summary = _summary(flight, rd.staging, link, interrupted is not None)
-            if error is not None:
-                summary["error"] = str(error)
-            if io_error is not None:
-                summary["stopped_by"] = describe_os_error(io_error, root=str(rd.staging))
-                return SessionResult(summary, _keep(rd, summary), None, None, io_error)
-            write_summary(rd.staging, summary)
-            if figures and error is None and interrupted is None and summary["steps"]:
-                plot_run(RunLog.load(rd.staging), rd.staging / "figures")
-            out_dir = rd.commit()
+        summary = _summary(flight, rd.staging, link, interrupted is not None)
+        if error is not None:
+            summary["error"] = str(error)
+        if io_error is not None:
+            summary["stopped_by"] = describe_os_error(io_error, root=str(rd.staging))
+            return SessionResult(summary, _keep(rd, summary), None, None, io_error)
+        write_summary(rd.staging, summary)
+        if figures and error is None and interrupted is None and summary["steps"]:
+            plot_run(RunLog.load(rd.staging), rd.staging / "figures")
+        out_dir = rd.commit()
     return SessionResult(summary, out_dir, error, interrupted)
 
 

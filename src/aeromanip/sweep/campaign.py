@@ -27,7 +27,7 @@ from typing import Any
 
 from aeromanip.errors import ConfigError
 from aeromanip.experiment.closed_loop import make_controller
-from aeromanip.interrupts import RunInterrupted, deferred
+from aeromanip.interrupts import RunInterrupted, deferred, interruptible
 from aeromanip.interrupts import clear as clear_interrupts
 from aeromanip.sweep.axes import Run
 from aeromanip.sweep.campaign_plots import plot_sweep
@@ -206,14 +206,15 @@ def run_campaign(plan: Plan, out: Path, settings: Settings) -> Outcome:
         rows = {r.run_id: row for r in plan.runs if (row := run_row(r, runs_dir, None))}
         todo = [r for r in plan.runs if r.run_id not in rows and r.run_id not in plan.invalid]
         outcome = Outcome(len(plan.runs), len(rows), len(todo), 0, dict(plan.invalid), {}, 0, 0.0)
-        try:
-            if todo:
-                outcome.compiled = precompile(plan, todo, settings.cache_dir)
-                _fly(plan, todo, out, settings, rows, outcome)
-        except RunInterrupted as e:
-            outcome.interrupted = e
-            clear_interrupts()  # handled: what finished is written below, the caller decides
-        with deferred():
+        with deferred():  # a signal after the fan-out waits for the tables
+            try:
+                with interruptible():
+                    if todo:
+                        outcome.compiled = precompile(plan, todo, settings.cache_dir)
+                        _fly(plan, todo, out, settings, rows, outcome)
+            except RunInterrupted as e:
+                outcome.interrupted = e
+                clear_interrupts()  # handled: what finished is written below
             outcome.results = write_tables(plan, out, rows, outcome.errors)
         outcome.done = sum(1 for r in plan.runs if complete(runs_dir / r.run_id))
         try:
