@@ -1,9 +1,9 @@
 """End to end: the ``flight`` scenario flown in real time by ``aeromanip fly`` over MAVLink
 against ``aeromanip sitl`` (two processes, 127.0.0.1 only, every wait bounded).
 
-One SITL serves three runtimes in turn (about 90 s in all):
+One SITL serves three runtimes in turn (about 60 s in all):
 
-A. a 60 s mission, completed: the vehicle's truth-log EE RMSE is within 1.5x of the same
+A. a 30 s mission, completed: the vehicle's truth-log EE RMSE is within 1.5x of the same
    scenario flown in-process in physics; no deadline miss at 2 Hz; setpoints >= 20 Hz.
 B. a runtime killed (SIGKILL) mid-flight: the SITL's offboard failsafe holds the vehicle
    (speed < 0.05 m/s, in place, arm still) within 1.5 s, inside its box.
@@ -32,7 +32,7 @@ pytest.importorskip("pymavlink")
 pytestmark = pytest.mark.realtime  # the two processes fly against the wall clock
 
 HOST = "127.0.0.1"
-MISSION_S = 60.0
+MISSION_S = 30.0
 SITL_MAX_S = 240.0  # the SITL stops by itself after this, whatever happens
 CLI = [sys.executable, "-m", "aeromanip.cli"]
 

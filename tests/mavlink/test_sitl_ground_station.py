@@ -35,6 +35,7 @@ RUN_S = 90.0
 ME = (255, 190)  # the client's system and component
 SETTLE_S = 0.3  # [s] the shortest wait after a command: what is sent with the answer
 ANSWER_WAIT_S = 3.0  # [s] the longest wait for its answer (a fully loaded machine)
+UNKNOWN_COMMAND = 31000  # a MAV_CMD no autopilot knows: answered UNSUPPORTED
 GET_MESSAGE_INTERVAL = 510  # MAV_CMD: answered by MESSAGE_INTERVAL, no COMMAND_ACK
 RATE_WINDOW_S = 4.0  # [s] messages counted over this
 PX4_RATES = {  # [Hz] PX4's ground-station link, and the SITL's state rate
@@ -122,6 +123,21 @@ class Gcs:
         self.pump(SETTLE_S)  # what comes with the answer arrives too
         self.pump(ANSWER_WAIT_S - SETTLE_S, until=answered)  # a loaded machine answers late
         return (acks()[0] if acks() else None), t0
+
+    def unanswered(self, command: int, *params: float, as_int: bool, target: tuple) -> bool:
+        """Send a command that must go unanswered, then one that is answered (an unknown
+        command, to us): the SITL reads in order, so its answer to the second proves the
+        first got none."""
+        t0 = time.monotonic()
+        p = [*params, *[0.0] * (7 - len(params))]
+        if as_int:
+            self.conn.mav.command_int_send(*target, 0, command, 0, 0, *p[:4], int(p[4]),
+                                           int(p[5]), p[6])  # fmt: skip
+        else:
+            self.conn.mav.command_long_send(*target, command, 0, *p)
+        fence, _ = self.ack(UNKNOWN_COMMAND)
+        assert fence is not None and fence.result == UNSUPPORTED, "the fence got no answer"
+        return not [a for a in self.since(t0, "COMMAND_ACK") if a.command == command]
 
     def texts(self, t0: float) -> list[str]:
         """The STATUSTEXTs since ``t0``, chunks (same non-zero id) joined."""
@@ -264,10 +280,10 @@ def test_message_intervals_are_set_as_px4_sets_them(gcs):
 
 def test_commands_long_and_int_alike_and_what_it_cannot_do_refused_in_words(gcs):
     for as_int in (False, True):
-        ack, _ = gcs.ack(31000, 1, as_int=as_int)  # a command it does not know
+        ack, _ = gcs.ack(UNKNOWN_COMMAND, 1, as_int=as_int)  # a command it does not know
         assert ack.result == UNSUPPORTED and (ack.target_system, ack.target_component) == ME
-        assert gcs.ack(400, 1, target=(7, 1), as_int=as_int)[0] is None  # not for it
-        assert gcs.ack(400, 1, target=(0, 1), as_int=as_int)[0] is None  # PX4: no broadcast
+        assert gcs.unanswered(400, 1, target=(7, 1), as_int=as_int)  # not for it
+        assert gcs.unanswered(400, 1, target=(0, 1), as_int=as_int)  # PX4: no broadcast
     ack, t0 = gcs.ack(400, 7)
     assert ack.result == UNSUPPORTED
     assert gcs.texts(t0) == ["Unsupported ARM_DISARM param: 7.000"]
