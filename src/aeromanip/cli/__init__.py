@@ -65,11 +65,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with stop_on_signals(keep=argv is None):
             args = build_parser().parse_args(argv)
+            _check_environment()
             return int(args.func(args))
     except SystemExit:  # --help
         raise
     except BaseException as e:
         return _ending(e)
+
+
+def _check_environment() -> None:
+    """Refuse a bad ``$AEROMANIP_CODEGEN_OPT`` in one line before any work."""
+    from aeromanip.nmpc.backends.codegen import cflags
+
+    cflags()
 
 
 def _ending(e: BaseException) -> int:

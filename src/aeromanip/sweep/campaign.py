@@ -188,10 +188,12 @@ def precompile(plan: Plan, todo: list[Run], cache_dir: Path | None) -> dict[str,
 
 
 def worker_env(cache_dir: Path | None) -> dict[str, str]:
-    """Environment variables of the workers: the compile cache and the codegen switch."""
+    """Environment variables of the workers: the compile cache, the codegen switch and
+    its optimisation level (the driver's builds are the workers' only with its flags)."""
     env = {CACHE_ENV: str(cache_dir)} if cache_dir else {}
-    if "AEROMANIP_CODEGEN" in os.environ:
-        env["AEROMANIP_CODEGEN"] = os.environ["AEROMANIP_CODEGEN"]
+    for name in ("AEROMANIP_CODEGEN", "AEROMANIP_CODEGEN_OPT"):
+        if name in os.environ:
+            env[name] = os.environ[name]
     return env
 
 

@@ -10,6 +10,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from aeromanip.errors import ConfigError
 from aeromanip.nmpc.backends import codegen
 from aeromanip.nmpc.backends.cache import CacheEntry, sha256_of
 from aeromanip.nmpc.backends.codegen import compiled
@@ -43,6 +44,32 @@ def test_compiled_sqp_matches_in_process(tmp_path, monkeypatch):
     b = Controller(pb, "weighted", "sqp", FAST).step(X0, 0.0)
     assert list(tmp_path.glob("*.so"))
     np.testing.assert_allclose(a.plan_u, b.plan_u, atol=1e-9)
+
+
+def test_the_generated_code_computes_the_same_at_every_optimisation_level(tmp_path, monkeypatch):
+    """The suite builds at -O0 (``tests/conftest.py``), users at -O2: a closed loop of
+    the SQP on each build gives the same plans, bit for bit."""
+    monkeypatch.setenv("AEROMANIP_CACHE", str(tmp_path))
+    plans = {}
+    for level in ("0", "2"):
+        monkeypatch.setenv("AEROMANIP_CODEGEN_OPT", level)
+        ctrl = Controller(make_problem(levels=(0, 0), horizon=3), "weighted", "sqp")
+        x, plans[level] = X0.copy(), []
+        for k in range(4):
+            cmd = ctrl.step(x, 0.5 * k)
+            plans[level].append(cmd.plan_u)
+            x = x + 0.5 * cmd.plan_u[0]
+    built = {lib.name.split("-")[0] for lib in tmp_path.glob("aeromanip_sqp_*.so")}
+    assert len(list(tmp_path.glob("aeromanip_sqp_*.so"))) == 2 * len(built)  # one per level
+    assert np.array_equal(np.array(plans["0"]), np.array(plans["2"]))
+
+
+def test_a_bad_optimisation_level_is_one_line(monkeypatch):
+    monkeypatch.setenv("AEROMANIP_CODEGEN_OPT", "fast")
+    with pytest.raises(
+        ConfigError, match=r"AEROMANIP_CODEGEN_OPT = 'fast': .* one of 0, 1, 2, 3, s"
+    ):
+        codegen.cflags()
 
 
 @pytest.mark.parametrize(
