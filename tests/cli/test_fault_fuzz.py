@@ -32,6 +32,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -369,3 +370,38 @@ def test_a_full_filesystem_stops_the_run_cleanly(small_tmpfs, capsys):
     assert rows == int(m[1]) and rows > 0, line
     if (run / "summary.json").is_file():  # when the disk still took it
         assert json.loads((run / "summary.json").read_text())["steps"] == rows
+
+
+@pytest.mark.parametrize("after", [0, 3])
+def test_a_state_gone_bad_mid_run_stops_it_cleanly_and_loses_no_row(
+    after, tmp_path, capsys, monkeypatch
+):
+    """The simulated state turns not finite after ``after`` steps (physics blown up, a
+    sensor's NaN): one line, exit 2, the run in place with its rows and a summary that
+    says why."""
+    from aeromanip.sim.kinematic import KinematicSimulator
+
+    advance, calls = KinematicSimulator.advance, []
+
+    def blows_up(self, u, plan_x, dt):
+        advance(self, u, plan_x, dt)
+        calls.append(1)
+        if len(calls) > after:
+            self.x[0] = np.nan
+
+    monkeypatch.setattr(KinematicSimulator, "advance", blows_up)
+    out = Path(tmp_path) / "run"
+    argv = ["run", "planar", "--variant", "cond-off", "--set", "duration=4", "--quiet"]
+    argv += ["--no-mcap", "--out", str(out)]
+    rc, _, err = call(argv, capsys, RUN_LIMIT_S)
+    line = assert_one_line(err, {ExitCode.BAD_INPUT}, rc, argv)
+    assert "the run stopped: state: y is not finite (nan)" in line, line
+    m = re.search(r"; (\d+) of (\d+) steps flown, kept in (.+)$", line)
+    assert m and Path(m[3]) == out.absolute(), line
+    run = out / "cond-off"
+    rows = len(RunLog.load(run))
+    assert rows == int(m[1]) == after + 1, (rows, line)
+    summary = json.loads((run / "summary.json").read_text())
+    assert "not finite" in summary["stopped_by"] and summary["steps"] == rows
+    assert not summary["interrupted"]
+    assert not list(out.parent.glob(f"{out.name}.partial-*"))

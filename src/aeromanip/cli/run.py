@@ -6,7 +6,8 @@ options, that ``--out`` can be written). Exit codes: 0 the run flew; 2 bad input
 scenario's ``max_failure_ratio``: the outputs are kept); 5 a write was refused (disk
 full, permission, read-only, I/O error): the rows written so far kept, the summary saying
 why (``"stopped_by"``); 130 / 143 stopped by SIGINT (Ctrl-C) / SIGTERM, with the rows flown
-so far kept and ``"interrupted": true``.
+so far kept and ``"interrupted": true``. A fault the run cannot fly on (a state that is
+not finite) stops it with the error's code, the rows kept and the summary saying why.
 """
 
 from __future__ import annotations
@@ -114,7 +115,7 @@ def _fly_and_report(scenarios: dict[str, Scenario], out: Path, args: argparse.Na
     with stop_on_signals():
         result = run_scenarios(scenarios, out, progress=not args.quiet)
     where = result.out_dir.resolve() if result.out_dir else out
-    if result.interrupted is None and result.io_error is None:
+    if result.interrupted is None and result.io_error is None and result.error is None:
         try:  # the run's files are in place: a signal from here on says so
             return _report_complete(result, where, args, t0)
         except RunInterrupted as e:
@@ -126,6 +127,9 @@ def _fly_and_report(scenarios: dict[str, Scenario], out: Path, args: argparse.Na
     if result.interrupted is not None:  # stop at once: ``aeromanip replay DIR --mcap`` later
         print(f"aeromanip: interrupted ({result.interrupted}): {kept}", file=sys.stderr)
         return result.interrupted.exit_code
+    if result.error is not None:  # a fault it could not fly on
+        print(f"aeromanip: error: the run stopped: {result.error}; {kept}", file=sys.stderr)
+        return result.error.exit_code
     from aeromanip.experiment.rundir import RunDirectory
 
     why = describe_os_error(result.io_error, root=str(RunDirectory(out).staging))

@@ -47,6 +47,7 @@ class RunResult:
     out_dir: Path | None = None
     interrupted: RunInterrupted | None = None
     io_error: OSError | None = None  # a write refused: the run stopped there
+    error: AeromanipError | None = None  # a fault it could not fly on: stopped there
 
 
 def write_static_files(sc: Scenario, out_dir: Path) -> None:
@@ -132,8 +133,9 @@ def run_one(
     sc: Scenario, out_dir: Path, progress: bool = True, figures: bool = True
 ) -> dict[str, Any]:
     """Fly ``sc`` into ``out_dir`` (streamed), then summarise and draw it; return the
-    summary. On an interrupt or a refused write the summary (``"interrupted"``,
-    ``"stopped_by"``) is written from the rows on disk, then the error is raised again."""
+    summary. On an interrupt, a refused write or a fault (an ``AeromanipError``) the
+    summary (``"interrupted"``, ``"stopped_by"``) is written from the rows on disk, then
+    the error is raised again."""
     out_dir.mkdir(parents=True, exist_ok=True)
     try:
         write_static_files(sc, out_dir)
@@ -152,6 +154,10 @@ def run_one(
         with deferred():
             why = describe_os_error(e, root=str(out_dir))
             _write_stopped_summary(sc, out_dir, why, interrupted=False)
+        raise
+    except AeromanipError as e:  # a fault it cannot fly on (e.g. a state not finite)
+        with deferred():
+            _write_stopped_summary(sc, out_dir, str(e), interrupted=False)
         raise
     if figures:
         plot_run(log, out_dir / "figures")
@@ -178,9 +184,9 @@ def run_scenarios(
 ) -> RunResult:
     """Run every variant into ``out_dir`` (``out_dir/<variant>`` when there are several),
     staged beside it and moved into place at the end, even when interrupted or stopped
-    by a refused write (then the cause is in ``RunResult.interrupted`` / ``io_error``, for
-    the caller to act on; ``out_dir`` is where the run lies, the staging directory if it
-    could not be moved into place)."""
+    by a refused write or a fault (then the cause is in ``RunResult.interrupted`` /
+    ``io_error`` / ``error``, for the caller to act on; ``out_dir`` is where the run lies,
+    the staging directory if it could not be moved into place)."""
     result = RunResult()
     try:
         with deferred(), RunDirectory(out_dir) as rd:  # a signal after the flight waits
@@ -197,8 +203,8 @@ def run_scenarios(
 def _fly_variants(
     result: RunResult, scenarios: dict[str, Scenario], staging: Path, progress: bool, figures: bool
 ) -> None:
-    """Fly every variant into ``staging``; a signal or a refused write stops it there,
-    recorded in ``result``."""
+    """Fly every variant into ``staging``; a signal, a refused write or a fault stops it
+    there, recorded in ``result``."""
     try:
         with interruptible():
             for variant, sc in scenarios.items():
@@ -212,6 +218,8 @@ def _fly_variants(
         clear_interrupts()  # handled here: the run is kept, the caller decides
     except OSError as e:
         result.io_error = e
+    except AeromanipError as e:
+        result.error = e
 
 
 def _commit(result: RunResult, scenarios: dict[str, Scenario], rd: RunDirectory) -> None:

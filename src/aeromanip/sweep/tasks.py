@@ -81,12 +81,15 @@ def libraries_built() -> int:
 
 
 def complete(run_dir: Path) -> bool:
-    """Whether ``run_dir`` holds a finished run: a readable, not interrupted summary."""
+    """Whether ``run_dir`` holds a finished run: a readable summary, neither interrupted
+    nor stopped (by a refused write or a fault)."""
     try:
         summary = json.loads((run_dir / SUMMARY_FILE).read_text())
     except (OSError, ValueError):
         return False
-    return isinstance(summary, dict) and "steps" in summary and not summary.get("interrupted")
+    if not isinstance(summary, dict) or "steps" not in summary:
+        return False
+    return not summary.get("interrupted") and "stopped_by" not in summary
 
 
 def clear_leftovers(run_dir: Path) -> None:
@@ -116,8 +119,12 @@ def execute(task: RunTask) -> dict[str, Any]:
         run_dir.parent.mkdir(parents=True, exist_ok=True)
         clear_leftovers(run_dir)
         result = run_scenarios({"": sc}, run_dir, progress=False, figures=task.figures)
-        stop = result.interrupted
-        out.update(status=FAILED if stop else DONE, error=f"interrupted ({stop})" if stop else "")
+        if result.interrupted is not None:
+            out.update(status=FAILED, error=f"interrupted ({result.interrupted})")
+        elif (stop := result.io_error or result.error) is not None:  # kept, not complete
+            out.update(status=FAILED, error=one_line(stop))
+        else:
+            out.update(status=DONE, error="")
     except Exception as e:  # a failing run is a result: recorded, the campaign goes on
         out.update(status=FAILED, error=one_line(e))
     out.update(
