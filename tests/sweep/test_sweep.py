@@ -61,6 +61,16 @@ class FailingSim(KinematicSimulator):
         raise RuntimeError("simulated sensor fault")
 
 
+class BlowingUpSim(KinematicSimulator):
+    """A simulator whose state turns not finite after two steps (the run stops, kept)."""
+
+    def advance(self, u, plan_x, dt):
+        super().advance(u, plan_x, dt)
+        self.steps = getattr(self, "steps", 0) + 1
+        if self.steps > 2:
+            self.x[0] = float("nan")
+
+
 @pytest.fixture(scope="module")
 def local_ray(tmp_path_factory):
     """Ray with 2 CPUs whose workers import this module (``PYTHONPATH``)."""
@@ -289,21 +299,26 @@ def test_a_worker_killed_mid_run_is_retried_and_no_row_is_lost(local_ray, tmp_pa
 
 def test_failed_runs_are_recorded_with_their_error_and_the_others_finish(local_ray, tmp_path):
     out = tmp_path / "sweep"
-    code = sweep(
-        out, "--grid", "controller.horizon=0,3", "--grid", "sim=kinematic,test_sweep:FailingSim"
-    )
+    sims = ("kinematic", "test_sweep:FailingSim", "test_sweep:BlowingUpSim")
+    code = sweep(out, "--grid", "controller.horizon=0,3", "--grid", f"sim={','.join(sims)}")
     assert code == 3
     rows = list(rows_of(out).values())
-    assert len(rows) == 4
+    assert len(rows) == 6
     status = {(r["controller.horizon"], r["sim"]): (r["status"], r["error"]) for r in rows}
     assert status[("3", "kinematic")] == ("done", "")
     assert status[("3", "test_sweep:FailingSim")][0] == "failed"
     assert "RuntimeError: simulated sensor fault" in status[("3", "test_sweep:FailingSim")][1]
-    for sim in ("kinematic", "test_sweep:FailingSim"):  # does not build: never sent to Ray
+    # stopped by a state not finite: failed, its rows kept with a summary saying why
+    assert status[("3", "test_sweep:BlowingUpSim")][0] == "failed"
+    assert "StateError: state: y is not finite" in status[("3", "test_sweep:BlowingUpSim")][1]
+    (blown,) = [r["run_id"] for r in rows if r["sim"] == sims[2] and r["controller.horizon"] == "3"]
+    summary = json.loads((out / "runs" / blown / "summary.json").read_text())
+    assert summary["steps"] == 3 and "not finite" in summary["stopped_by"]
+    for sim in sims:  # does not build: never sent to Ray
         assert status[("0", sim)][0] == "failed"
         assert "controller.horizon: must be in [1, 500], got 0" in status[("0", sim)][1]
     failed = json.loads((out / "failed.json").read_text())
-    assert len(failed) == 3 and all(f["error"] for f in failed.values())
+    assert len(failed) == 5 and all(f["error"] for f in failed.values())
 
 
 def test_scaling_flies_the_campaign_once_per_worker_count(local_ray, tmp_path, capsys):
