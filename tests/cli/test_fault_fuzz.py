@@ -377,7 +377,7 @@ def test_a_state_gone_bad_mid_run_stops_it_cleanly_and_loses_no_row(
     after, tmp_path, capsys, monkeypatch
 ):
     """The simulated state turns not finite after ``after`` steps (physics blown up, a
-    sensor's NaN): one line, exit 2, the run in place with its rows and a summary that
+    sensor's NaN): one line, exit 3, the run in place with its rows and a summary that
     says why."""
     from aeromanip.sim.kinematic import KinematicSimulator
 
@@ -394,7 +394,7 @@ def test_a_state_gone_bad_mid_run_stops_it_cleanly_and_loses_no_row(
     argv = ["run", "planar", "--variant", "cond-off", "--set", "duration=4", "--quiet"]
     argv += ["--no-mcap", "--out", str(out)]
     rc, _, err = call(argv, capsys, RUN_LIMIT_S)
-    line = assert_one_line(err, {ExitCode.BAD_INPUT}, rc, argv)
+    line = assert_one_line(err, {ExitCode.DID_NOT_FLY}, rc, argv)
     assert "the run stopped: state: y is not finite (nan)" in line, line
     m = re.search(r"; (\d+) of (\d+) steps flown, kept in (.+)$", line)
     assert m and Path(m[3]) == out.absolute(), line
