@@ -172,3 +172,41 @@ def test_telemetry_bad_from_the_start_commands_nothing(x0, tmp_path, capsys):
     assert v.of_type("SET_POSITION_TARGET_LOCAL_NED") == []
     assert {r.msg.command for r in v.of_type("COMMAND_LONG")} <= {511}  # rates asked only
     assert not v.armed
+
+
+def test_a_controller_fault_mid_flight_holds_the_vehicle_and_keeps_the_run(
+    x0, tmp_path, capsys, monkeypatch
+):
+    """The controller raises (a state it cannot fly on) at its third step: the vehicle is
+    held and commanded to Hold, one line, exit 3, the rows flown kept with the cause."""
+    from aeromanip.errors import StateError
+    from aeromanip.nmpc.controller import Controller
+
+    step, calls, raised = Controller.step, [], []
+
+    def faulty(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raised.append(time.monotonic())
+            raise StateError("x: injected fault")
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(Controller, "step", faulty)
+    rc, v, out = fly_against({}, x0, tmp_path / "run", capsys)
+    assert rc == ExitCode.DID_NOT_FLY, out.err
+    lines = out.err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in out.err, out.err
+    assert "the flight stopped (vehicle holding): x: injected fault; 2 steps kept" in lines[0]
+    s = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert s["ending"] == "fault" and s["stopped_by"] == "x: injected fault" and s["hold_accepted"]
+    assert len(RunLog.load(tmp_path / "run", require_rows=True)) == s["steps"] == 2
+    modes_after = [
+        (round(r.msg.param2), round(r.msg.param3))
+        for r in v.of_type("COMMAND_LONG")
+        if r.msg.command == 176 and r.t > raised[0]
+    ]
+    assert modes_after == [(AUTO, LOITER)] and (v.main, v.sub) == (AUTO, LOITER)
+    # until Hold is taken, the setpoints hold one point (as after Ctrl-C)
+    since = raised[0] + STOP_WITHIN_S  # one in flight meanwhile may still follow the plan
+    held = [r.msg for r in v.of_type("SET_POSITION_TARGET_LOCAL_NED") if r.t > since]
+    assert not held or np.ptp([[m.x, m.y, m.z] for m in held], axis=0).max() < 1e-6

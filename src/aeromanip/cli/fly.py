@@ -106,6 +106,13 @@ def _fly(sc: Scenario, link: str, out: Path, stream_hz: float, feedback: bool) -
     if result.error is not None:
         print(f"aeromanip: {result.error}; run kept in {result.out_dir}", file=sys.stderr)
         return ExitCode.LINK
+    if result.fault is not None:  # it did not really fly
+        print(
+            f"aeromanip: error: the flight stopped (vehicle holding): {result.fault}; "
+            f"{s.get('steps', 0)} steps kept in {result.out_dir}",
+            file=sys.stderr,
+        )
+        return ExitCode.DID_NOT_FLY
     if result.interrupted is not None:
         where = result.out_dir
         print(f"aeromanip: interrupted: vehicle holding; run kept in {where}", file=sys.stderr)

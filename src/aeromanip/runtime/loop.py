@@ -113,7 +113,8 @@ class RealtimeFlight:
     def fly(self, sink: Callable[[Row], None]) -> FlightStats:
         """Fly the mission, handing a row per step to ``sink``; ``LinkError`` if the link
         is lost or the autopilot refuses, ``RunInterrupted`` on a signal, ``OSError`` if a
-        row cannot be written (the vehicle left holding in both)."""
+        row cannot be written, any other error of the step raised as it is (the vehicle
+        left holding in all but the first)."""
         self.transport.connect(CONNECT_TIMEOUT_S)
         m = self._first_state()
         self.follower.hold(m.x)
@@ -139,6 +140,11 @@ class RealtimeFlight:
         except OSError:  # the log cannot be written: stop the mission, the vehicle holding
             self.stats.ending = "write refused"
             self._hold()
+            raise
+        except Exception:  # a fault it cannot fly on (a bug too): the vehicle holding first
+            self.stats.ending = "fault"
+            if self.streamer.flying.is_set():
+                self._hold()
             raise
         finally:
             self._stream_stats()

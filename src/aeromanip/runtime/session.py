@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from aeromanip.errors import describe_os_error
+from aeromanip.errors import AeromanipError, describe_os_error
 from aeromanip.experiment.closed_loop import log_columns, run_meta
 from aeromanip.experiment.logwriter import LogWriter
 from aeromanip.experiment.plots import plot_run
@@ -42,6 +42,7 @@ class SessionResult:
     error: LinkError | None = None
     interrupted: RunInterrupted | None = None
     io_error: OSError | None = None  # a write refused: the flight stopped there
+    fault: AeromanipError | None = None  # a fault it could not fly on: stopped there
 
 
 def fly_session(
@@ -49,7 +50,7 @@ def fly_session(
 ) -> SessionResult:
     """Fly ``flight`` into run directory ``out``; ``link`` is recorded in the summary."""
     sc = flight.sc
-    error, interrupted, io_error = None, None, None
+    error, interrupted, io_error, fault = None, None, None, None
     with deferred(), RunDirectory(out) as rd:  # a signal after the flight waits
         columns = [*log_columns(sc, _NoSimulator()), *RUNTIME_COLUMNS]  # type: ignore[arg-type]
         meta = run_meta(sc) | {"sim": "vehicle", "link": link}
@@ -65,17 +66,22 @@ def fly_session(
             clear_interrupts()
         except OSError as e:
             io_error = e
+        except AeromanipError as e:  # e.g. a state not finite: the vehicle holding
+            fault = e
         summary = _summary(flight, rd.staging, link, interrupted is not None)
         if error is not None:
             summary["error"] = str(error)
+        if fault is not None:
+            summary["stopped_by"] = str(fault)
         if io_error is not None:
             summary["stopped_by"] = describe_os_error(io_error, root=str(rd.staging))
             return SessionResult(summary, _keep(rd, summary), None, None, io_error)
         write_summary(rd.staging, summary)
-        if figures and error is None and interrupted is None and summary["steps"]:
+        stopped = error is not None or interrupted is not None or fault is not None
+        if figures and not stopped and summary["steps"]:
             plot_run(RunLog.load(rd.staging), rd.staging / "figures")
         out_dir = rd.commit()
-    return SessionResult(summary, out_dir, error, interrupted)
+    return SessionResult(summary, out_dir, error, interrupted, fault=fault)
 
 
 def _keep(rd: RunDirectory, summary: dict[str, Any]) -> Path:
