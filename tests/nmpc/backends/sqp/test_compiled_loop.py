@@ -86,6 +86,17 @@ def test_a_bounded_loop_judges_its_last_iterate_as_the_python_loop():
     np.testing.assert_allclose(c_u, py_u, rtol=0, atol=EQUAL)
 
 
+def test_the_loops_options_are_in_the_order_the_c_loop_reads_them():
+    import re
+
+    from aeromanip.nmpc.backends.sqp.solver import LOOP_OPTIONS
+
+    header = (compiled_loop.HERE / "sqp_loop.h").read_text()
+    enum = re.search(r"enum \{\s*(OPT_MAX_ITER.*?)\};", header, re.DOTALL)[1]
+    names = [n.lower()[4:] for n in re.findall(r"\b(OPT_[A-Z_]+)\b", enum)]
+    assert names == [*LOOP_OPTIONS, "count"]
+
+
 def test_the_eigensolver_agrees_with_lapack():
     lib = compiled_loop.loop_library()
     assert lib is not None

@@ -184,14 +184,14 @@ static int qp_step(Sqp* s, const Problem* pb, const double* U, double* lam_c, do
   return 0;
 }
 
-/* opts: max_iter, tol, acceptable_tol, constr_viol_tol, acceptable_iter, rti, hessian
-   (HESS_*), regularization, warm (multipliers given), accept_at_max_iter */
+/* opts: OPT_COUNT values, in the order of OPT_* (sqp_loop.h) */
 int sqp_solve(Sqp* s, const double* opts, const double* p, const double* lbc,
               const double* ubc, const double* lbU, const double* ubU, double* U,
               double* lam_c, double* lam_u, double* memory, SqpInfo* info) {
-  Problem pb = {p, lbc, ubc, lbU, ubU, (int)opts[0], (int)opts[4], opts[5] != 0.0,
-                (int)opts[6], opts[8] != 0.0, opts[9] != 0.0, opts[1], opts[2], opts[3],
-                opts[7]};
+  Problem pb = {p, lbc, ubc, lbU, ubU, (int)opts[OPT_MAX_ITER], (int)opts[OPT_ACCEPTABLE_ITER],
+                opts[OPT_RTI] != 0.0, (int)opts[OPT_HESSIAN], opts[OPT_WARM] != 0.0,
+                opts[OPT_ACCEPT_AT_MAX_ITER] != 0.0, opts[OPT_TOL], opts[OPT_ACCEPTABLE_TOL],
+                opts[OPT_CONSTR_VIOL_TOL], opts[OPT_REGULARIZATION]};
   if (pb.rti) pb.max_iter = 1;
   double mu = 0.0, damping = 0.0, f;
   int it = 0, acceptable = 0, status, exact = pb.hess_mode == HESS_EXACT;

@@ -44,7 +44,7 @@ struct AmController {
   Level* level;
   Fn parameters, plan;
   double *guess, *gc, *scratch;
-  double opts[10];
+  double opts[OPT_COUNT];
 };
 
 /* a clock for the levels' times [s] (0 where C11's timespec_get is missing) */
@@ -250,7 +250,7 @@ static int solve(AmController* c, int i, const double* start, int warm, SqpInfo*
     memset(s->lam_u, 0, sizeof(double) * (size_t)nU);
     memset(s->memory, 0, sizeof(double) * (size_t)nc);
   }
-  c->opts[8] = warm ? 1.0 : 0.0;
+  c->opts[OPT_WARM] = warm ? 1.0 : 0.0;
   return sqp_solve(lv->sqp, c->opts, c->s.p, s->lbc, s->ubc, cfg->lbU, cfg->ubU, s->U,
                    s->lam_c, s->lam_u, s->memory, info);
 }
@@ -290,7 +290,7 @@ static int level_bounds(AmController* c, int i) {
    seeds it again (SqpBackend.solve) */
 static int reseed(const AmController* c, double f, double promise) {
   const AmConfig* cfg = c->cfg;
-  return cfg->host_seeds && cfg->opts[5] == 0.0 && f > cfg->seed_ratio * promise + cfg->seed_floor;
+  return cfg->host_seeds && cfg->opts[OPT_RTI] == 0.0 && f > cfg->seed_ratio * promise + cfg->seed_floor;
 }
 
 /* level i solved from `start`; a warm solve that fails is retried cold (from where it
@@ -314,7 +314,7 @@ static int solve_level(AmController* c, int i, const double* start) {
   int status = solve(c, i, start, warm, &info);
   s->iterations += info.iterations;
   /* accept_at_max_iter bounds the step: a solve that ran out of iterations is final */
-  int spent = status == ST_MAX_ITER && c->cfg->opts[9] != 0.0;
+  int spent = status == ST_MAX_ITER && c->cfg->opts[OPT_ACCEPT_AT_MAX_ITER] != 0.0;
   if (!succeeded(c, status, s->U) && warm && !spent) { /* stale multipliers: retry cold */
     if (c->cfg->host_seeds) {
       host = 1;

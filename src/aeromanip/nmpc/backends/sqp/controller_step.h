@@ -31,7 +31,7 @@ typedef struct {
   const AmLevel* levels;
   const double* daqp;       /* compiled_loop.DAQP_SETTINGS */
   const double* constants;  /* compiled_loop.CONSTANTS */
-  const double* opts;       /* SqpBackend._loop_opts (10) */
+  const double* opts;       /* SqpBackend._loop_opts (OPT_COUNT, sqp_loop.h) */
   const int* shift_vars;    /* nU: the command that predicts each one a step on */
   const double *lbU, *ubU;  /* nU: the commands' bounds in the condensed QP */
   const double *u_lower, *u_upper; /* nx: the command's bounds (the fallback's clip) */

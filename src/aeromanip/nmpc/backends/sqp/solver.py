@@ -209,7 +209,11 @@ KAPPA_SOC = 0.99
 # A converged solve tries them at any rise (in the stress bench's ``clearance`` case 20
 # of 32 corrections at rises below 1e-12 were accepted; without them two steps took 50 QPs)
 SOC_MIN_RISE = 1e-10
-WARM_OPTION = 8  # the compiled loop's options: where "the multipliers are given" goes
+#: the compiled loop's options, in the order of ``OPT_*`` in sqp_loop.h (``warm``: the
+#: multipliers are given, set per solve)
+LOOP_OPTIONS = ("max_iter", "tol", "acceptable_tol", "constr_viol_tol", "acceptable_iter",
+                "rti", "hessian", "regularization", "warm", "accept_at_max_iter")  # fmt: skip
+WARM_OPTION = LOOP_OPTIONS.index("warm")
 #: the loop's successful ends
 SOLVED = ("Solve_Succeeded", "Solved_To_Acceptable_Level", "Feasible_At_Maximum_Iterations")
 #: the constants above, for the compiled loop
@@ -251,13 +255,10 @@ class SqpBackend(Backend):
             CompiledLoop.for_model(self.model, self.opts, LOOP_CONSTANTS) if compiled else None
         )
         self.rti = CompiledRti.for_model(self.model, self.opts) if compiled else None
+        coded = {"hessian": HESSIAN_CODES[self.opts["hessian"]], "warm": 0.0}
         self._loop_opts = np.array(
-            [self.opts[k] for k in ("max_iter", "tol", "acceptable_tol", "constr_viol_tol",
-                                    "acceptable_iter", "rti")]
-            + [HESSIAN_CODES[self.opts["hessian"]], self.opts["regularization"], 0.0,
-               self.opts["accept_at_max_iter"]],
-            dtype=float,
-        )  # fmt: skip
+            [coded.get(k, self.opts.get(k)) for k in LOOP_OPTIONS], dtype=float
+        )
         if self.opts["blas_threads"] is not None:  # every OpenBLAS loaded by now
             limit_blas_threads(int(self.opts["blas_threads"]))
         self._ipopt: Backend | None = None  # the seed, built on first use

@@ -76,6 +76,21 @@ QpOutcome qp_solve(Sqp* s, const double* H, const double* g, const double* A,
 int hessian(Sqp* s, const double* U, const double* p, const double* lam_c,
             const double* lam_u, int exact, double regularization, double damping, int shift);
 
+/* the places of sqp_solve's options (SqpBackend._loop_opts, in this order) */
+enum {
+  OPT_MAX_ITER,
+  OPT_TOL,
+  OPT_ACCEPTABLE_TOL,
+  OPT_CONSTR_VIOL_TOL,
+  OPT_ACCEPTABLE_ITER,
+  OPT_RTI,
+  OPT_HESSIAN, /* HESS_* */
+  OPT_REGULARIZATION,
+  OPT_WARM, /* the multipliers are given */
+  OPT_ACCEPT_AT_MAX_ITER,
+  OPT_COUNT
+};
+
 /* the loop's entry points (condensed_loop.c) */
 Sqp* sqp_new(const int* dims, const int* hier_row, const unsigned char* always,
              const int* sizes, int n_sizes, double screen, const double* daqp,
