@@ -25,8 +25,13 @@ from aeromanip.nmpc.backends.codegen import Buffered, quiet_stdout
 SCREEN_ROUNDS = 4  # solves on screened rows before the full QP is solved
 PADDED_SIZES = (8, 16, 24, 32, 48, 64)  # row counts of the prebuilt solvers (and m)
 CROSS_TOL = 1e-6  # a row is crossed beyond this, relative to 1 + |d|_inf
+# DAQP's primal tolerance: 1e-2 of the SQP's default tol, as the sparse QP's residuals
+# (hpipm.QP_TOL_SHARE). At 1e-9 DAQP called a feasible QP of the stress bench's
+# ``clearance`` hierarchy infeasible (HiGHS: feasible; DAQP at 3e-9 or looser: solved,
+# rows held to 2.3e-9), and the step was partial
+DAQP_PRIMAL_TOL = 1e-8
 SOLVERS: dict[str, dict[str, Any]] = {
-    "daqp": {"daqp": {"primal_tol": 1e-9, "iter_limit": 2000}},
+    "daqp": {"daqp": {"primal_tol": DAQP_PRIMAL_TOL, "iter_limit": 2000}},
     "qpoases": {"printLevel": "none", "sparse": False},
 }
 #: DAQP's exit flags (its ``types.h``), which CasADi reports as the bare number
