@@ -73,6 +73,19 @@ def assert_one_line(err: str, codes: set[int], rc: int, argv: list[str]) -> str:
     return lines[0]
 
 
+def planar_argv(out: Path, duration: float) -> list[str]:
+    """``aeromanip run planar`` (its ``cond-off`` variant) for ``duration`` s into ``out``."""
+    return ["run", "planar", "--variant", "cond-off", "--set", f"duration={duration:g}",
+            "--quiet", "--no-mcap", "--out", str(out)]  # fmt: skip
+
+
+def steps_kept(line: str, out: Path) -> tuple[int, Path]:
+    """The steps a stop's line says were flown (the line naming ``out``) and the run."""
+    m = re.search(r"; (\d+) of (\d+) steps flown, kept in (.+)$", line)
+    assert m and Path(m[3]) == out.absolute(), line
+    return int(m[1]), out / "cond-off" if (out / "cond-off").is_dir() else out
+
+
 # ------------------------------------------------------------------ links that cannot open
 
 
@@ -321,17 +334,14 @@ def refusing_writes(budget: int, code: int) -> Iterator[list[logwriter.LogWriter
 @given(refusal=st.sampled_from(REFUSALS), budget=st.integers(0, 3500))
 def test_a_refused_write_stops_the_run_cleanly_and_loses_no_row(refusal, budget, tmp_path, capsys):
     out = Path(tmp_path) / f"run-{refusal}-{budget}"
-    argv = ["run", "planar", "--variant", "cond-off", "--set", "duration=1", "--quiet"]
-    argv += ["--no-mcap", "--out", str(out)]
+    argv = planar_argv(out, 1.0)
     with refusing_writes(budget, getattr(errno, refusal)) as accepted:
         rc, _, err = call(argv, capsys, RUN_LIMIT_S)
     line = assert_one_line(err, {ExitCode.IO}, rc, argv)
     assert f"({refusal})" in line and "log.csv" in line, line
-    m = re.search(r"; (\d+) of (\d+) steps flown, kept in (.+)$", line)
-    assert m and Path(m[3]) == out.absolute(), line
-    run = out / "cond-off" if (out / "cond-off").is_dir() else out
+    flown, run = steps_kept(line, out)
     rows = len(RunLog.load(run)) if (run / "log.csv").stat().st_size else 0
-    assert rows == accepted[0].rows == int(m[1]), (rows, accepted[0].rows, line)
+    assert rows == accepted[0].rows == flown, (rows, accepted[0].rows, line)
     summary = json.loads((run / "summary.json").read_text())
     assert refusal in summary["stopped_by"] and summary["steps"] == rows
     assert not list(out.parent.glob(f"{out.name}.partial-*"))
@@ -358,16 +368,13 @@ def small_tmpfs(tmp_path: Path) -> Iterator[Path]:
 
 def test_a_full_filesystem_stops_the_run_cleanly(small_tmpfs, capsys):
     out = small_tmpfs / "run"
-    argv = ["run", "planar", "--variant", "cond-off", "--set", "duration=20", "--quiet"]
-    argv += ["--no-mcap", "--out", str(out)]
+    argv = planar_argv(out, 20.0)
     rc, _, err = call(argv, capsys, RUN_LIMIT_S)
     line = assert_one_line(err, {ExitCode.IO}, rc, argv)
     assert "(ENOSPC)" in line, line
-    m = re.search(r"; (\d+) of (\d+) steps flown, kept in (.+)$", line)
-    assert m and Path(m[3]) == out.absolute(), line
-    run = out / "cond-off" if (out / "cond-off").is_dir() else out
+    flown, run = steps_kept(line, out)
     rows = len(RunLog.load(run)) if (run / "log.csv").is_file() else 0
-    assert rows == int(m[1]) and rows > 0, line
+    assert rows == flown and rows > 0, line
     if (run / "summary.json").is_file():  # when the disk still took it
         assert json.loads((run / "summary.json").read_text())["steps"] == rows
 
@@ -391,16 +398,13 @@ def test_a_state_gone_bad_mid_run_stops_it_cleanly_and_loses_no_row(
 
     monkeypatch.setattr(KinematicSimulator, "advance", blows_up)
     out = Path(tmp_path) / "run"
-    argv = ["run", "planar", "--variant", "cond-off", "--set", "duration=4", "--quiet"]
-    argv += ["--no-mcap", "--out", str(out)]
+    argv = planar_argv(out, 4.0)
     rc, _, err = call(argv, capsys, RUN_LIMIT_S)
     line = assert_one_line(err, {ExitCode.DID_NOT_FLY}, rc, argv)
     assert "the run stopped: state: y is not finite (nan)" in line, line
-    m = re.search(r"; (\d+) of (\d+) steps flown, kept in (.+)$", line)
-    assert m and Path(m[3]) == out.absolute(), line
-    run = out / "cond-off"
+    flown, run = steps_kept(line, out)
     rows = len(RunLog.load(run))
-    assert rows == int(m[1]) == after + 1, (rows, line)
+    assert rows == flown == after + 1, (rows, line)
     summary = json.loads((run / "summary.json").read_text())
     assert "not finite" in summary["stopped_by"] and summary["steps"] == rows
     assert not summary["interrupted"]

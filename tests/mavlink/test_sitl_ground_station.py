@@ -103,8 +103,8 @@ class Gcs:
     def since(self, t0: float, kind: str) -> list:
         return [m for t, m in self.log if t >= t0 and m.get_type() == kind]
 
-    def ack(self, command: int, *params: float, as_int: bool = False, target=(1, 1)):
-        """Send a command (COMMAND_LONG or COMMAND_INT), return (its ACK or None, t0)."""
+    def send(self, command: int, params: tuple, as_int: bool, target: tuple) -> float:
+        """Send a command (COMMAND_LONG or COMMAND_INT); when it was sent."""
         t0 = time.monotonic()
         p = [*params, *[0.0] * (7 - len(params))]
         if as_int:
@@ -112,6 +112,11 @@ class Gcs:
                                            int(p[5]), p[6])  # fmt: skip
         else:
             self.conn.mav.command_long_send(*target, command, 0, *p)
+        return t0
+
+    def ack(self, command: int, *params: float, as_int: bool = False, target=(1, 1)):
+        """Send a command (COMMAND_LONG or COMMAND_INT), return (its ACK or None, t0)."""
+        t0 = self.send(command, params, as_int, target)
 
         def acks() -> list:
             return [a for a in self.since(t0, "COMMAND_ACK") if a.command == command]
@@ -128,13 +133,7 @@ class Gcs:
         """Send a command that must go unanswered, then one that is answered (an unknown
         command, to us): the SITL reads in order, so its answer to the second proves the
         first got none."""
-        t0 = time.monotonic()
-        p = [*params, *[0.0] * (7 - len(params))]
-        if as_int:
-            self.conn.mav.command_int_send(*target, 0, command, 0, 0, *p[:4], int(p[4]),
-                                           int(p[5]), p[6])  # fmt: skip
-        else:
-            self.conn.mav.command_long_send(*target, command, 0, *p)
+        t0 = self.send(command, params, as_int, target)
         fence, _ = self.ack(UNKNOWN_COMMAND)
         assert fence is not None and fence.result == UNSUPPORTED, "the fence got no answer"
         return not [a for a in self.since(t0, "COMMAND_ACK") if a.command == command]
