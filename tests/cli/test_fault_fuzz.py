@@ -409,3 +409,23 @@ def test_a_state_gone_bad_mid_run_stops_it_cleanly_and_loses_no_row(
     assert "not finite" in summary["stopped_by"] and summary["steps"] == rows
     assert not summary["interrupted"]
     assert not list(out.parent.glob(f"{out.name}.partial-*"))
+
+
+def test_a_fault_before_the_first_step_keeps_the_error_code(tmp_path, capsys, monkeypatch):
+    """Nothing flown (the simulator refused at its build): the error's own exit code, the
+    run directory in place with its summary saying why."""
+    from aeromanip.errors import ConfigError
+    from aeromanip.experiment import runner
+
+    def refused(sc):
+        raise ConfigError("physics: refused at build")
+
+    monkeypatch.setattr(runner, "make_simulator", refused)
+    out = Path(tmp_path) / "run"
+    argv = planar_argv(out, 1.0)
+    rc, _, err = call(argv, capsys, RUN_LIMIT_S)
+    line = assert_one_line(err, {ExitCode.BAD_INPUT}, rc, argv)
+    flown, run = steps_kept(line, out)
+    assert flown == 0 and "the run stopped: physics: refused at build" in line, line
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["steps"] == 0 and summary["stopped_by"] == "physics: refused at build"

@@ -7,7 +7,8 @@ scenario's ``max_failure_ratio``: the outputs are kept); 5 a write was refused (
 full, permission, read-only, I/O error): the rows written so far kept, the summary saying
 why (``"stopped_by"``); 130 / 143 stopped by SIGINT (Ctrl-C) / SIGTERM, with the rows flown
 so far kept and ``"interrupted": true``. A fault the run cannot fly on (a state that is
-not finite) stops it with exit 3, the rows kept and the summary saying why.
+not finite) stops it with exit 3 (the error's own code if no step was flown), the rows
+kept and the summary saying why.
 """
 
 from __future__ import annotations
@@ -129,7 +130,7 @@ def _fly_and_report(scenarios: dict[str, Scenario], out: Path, args: argparse.Na
         return result.interrupted.exit_code
     if result.error is not None:  # a fault it could not fly on: it did not really fly
         print(f"aeromanip: error: the run stopped: {result.error}; {kept}", file=sys.stderr)
-        return ExitCode.DID_NOT_FLY
+        return ExitCode.DID_NOT_FLY if flown else result.error.exit_code
     from aeromanip.experiment.rundir import RunDirectory
 
     why = describe_os_error(result.io_error, root=str(RunDirectory(out).staging))
