@@ -107,8 +107,9 @@ def _fly(sc: Scenario, link: str, out: Path, stream_hz: float, feedback: bool) -
         print(f"aeromanip: {result.error}; run kept in {result.out_dir}", file=sys.stderr)
         return ExitCode.LINK
     if result.fault is not None:  # it did not really fly
+        held = " (vehicle holding)" if s.get("steps") else ""  # flying: held, then raised
         print(
-            f"aeromanip: error: the flight stopped (vehicle holding): {result.fault}; "
+            f"aeromanip: error: the flight stopped{held}: {result.fault}; "
             f"{s.get('steps', 0)} steps kept in {result.out_dir}",
             file=sys.stderr,
         )
