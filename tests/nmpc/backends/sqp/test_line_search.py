@@ -204,6 +204,57 @@ def test_corrections_in_a_row_stop_at_max_soc_and_are_counted(max_soc):
     assert model.tried == [1.0, *alphas[:max_soc], 0.5]
 
 
+def test_where_a_correction_is_a_whole_solve_it_is_tried_only_if_it_may_turn_the_trial():
+    """A model whose correction is a whole QP solve (``correction_is_a_solve``: the
+    sparse model's interior point) tries one only while the rows' rise over the
+    iterate's violation (times ``mu``) is at least what the trial misses the acceptance
+    level by otherwise: a correction moves the rows, not the cost. The other models keep
+    IPOPT's rule (any rise). From cost 5 and violation 0.5 (``mu`` 10), the level is
+    ``10 - 1.1e-3``."""
+    good = QpResult(np.array([1.9]), np.zeros(1), np.zeros(1), True, "")
+
+    def tried(full, solve_each, then=(0.0, 0.0)):
+        model = MeritLine({1.0: full, 0.95: then, 0.5: (0.0, 0.0)})
+        model.correction_is_a_solve = solve_each
+        calls, counted = [], []
+        model.correction = lambda v, d, lin, p: calls.append(d) or good
+        search(model, viol0=0.5, counted=counted)
+        return len(calls)
+
+    # rise 10 x (1.0 - 0.5) = 5; missed otherwise by 50 + 5 - 10: the cost rejected it
+    assert tried((50.0, 1.0), True) == 0
+    assert tried((50.0, 1.0), False) == 1
+    # missed otherwise by 5.1 + 5 - 10 = 0.1 < 5: the rows' rise rejected it
+    assert tried((5.1, 1.0), True) == 1
+    # at the edge: a cost at the level misses it otherwise by the rise exactly
+    level = 10.0 + 1e-4 * (2 * -3.0 - 10.0 * 0.5)
+    assert tried((level, 1.0), True) == 1
+    assert tried((level + 0.01, 1.0), True) == 0  # misses by 5.01
+
+
+def test_where_a_correction_is_a_whole_solve_the_next_is_tried_only_if_it_may_turn_it():
+    """After a correction that cut the rows' violation but left the trial rejected by its
+    cost, a model whose corrections are whole solves stops (then backtracks); the
+    others go on while each cuts the violation by ``KAPPA_SOC``, up to ``MAX_SOC``."""
+    alphas = [0.95, 0.9, 0.85, 0.8]
+    table = {1.0: (5.1, 1.0), 0.5: (0.0, 0.0)}  # the full step: its rows' rise rejected it
+    table.update({a: (50.0, 0.9 - 0.1 * k) for k, a in enumerate(alphas)})  # then the cost
+
+    def tried(solve_each):
+        model = MeritLine(table)
+        model.correction_is_a_solve = solve_each
+        corrections = iter(alphas)
+        model.correction = lambda v, d, lin, p: QpResult(
+            np.array([2.0 * next(corrections)]), np.zeros(1), np.zeros(1), True, ""
+        )
+        counted = []
+        assert search(model, viol0=0.5, counted=counted) == (0.5, None)
+        return counted[0]
+
+    assert tried(True) == 1
+    assert tried(False) == MAX_SOC
+
+
 def test_the_damping_grows_tenfold_after_a_short_step_and_fades_after_full_ones():
     """Levenberg-Marquardt damping: from 0 to 1e-3 at the first shortened step, x10 at
     each next one; /10 after a full step, back to 0 once below 1e-3."""

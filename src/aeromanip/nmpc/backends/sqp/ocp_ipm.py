@@ -35,7 +35,10 @@ SPEC = CSources(
 #: ``ocp_ipm_solve``'s status codes (``ocp_ipm.h``)
 STATUS = {0: "solved", 1: "maximum iterations", 2: "stalled", 3: "not finite", 4: "not convex"}
 USABLE = (0, 1, 2)  # statuses whose iterate is returned (the caller checks it)
-SLACK_FLOOR = 1.0  # the slacks' and bound multipliers' least value at the start
+# the slacks' least value at the start (and the bound multipliers' most), for a QP of
+# unknown scale; an SQP's QPs are steps, small near convergence, and start nearer their
+# bounds (``sparse_qp.STEP_SLACK_FLOOR``)
+SLACK_FLOOR = 1.0
 
 
 class OcpIpmInfo(ctypes.Structure):
@@ -126,10 +129,12 @@ class OcpSolution:
 class RiccatiQp:
     """The solver for one problem shape (``N`` stages, ``nx`` states, ``nu`` inputs,
     ``nc`` rows per stage and ``ncT`` at the end, dynamics ``A``, ``B``), to residuals
-    ``tol`` in at most ``iter_max`` iterations. Build with ``RiccatiQp.create``."""
+    ``tol`` in at most ``iter_max`` iterations, starting its slacks at ``slack_floor`` or
+    more. Build with ``RiccatiQp.create``."""
 
     def __init__(self, lib: ctypes.CDLL, dims: tuple[int, int, int, int, int],
-                 A: np.ndarray, B: np.ndarray, tol: float, iter_max: int) -> None:  # fmt: skip
+                 A: np.ndarray, B: np.ndarray, tol: float, iter_max: int,
+                 slack_floor: float = SLACK_FLOOR) -> None:  # fmt: skip
         self.lib = lib
         self.N, self.nx, self.nu, self.nc, self.ncT = dims
         A = np.ascontiguousarray(A, dtype=float)
@@ -137,20 +142,25 @@ class RiccatiQp:
         self._handle = lib.ocp_ipm_new(*dims, A.ctypes.data, B.ctypes.data)
         if not self._handle:
             raise MemoryError("the Riccati QP solver could not allocate its buffers")
-        self.settings = np.array([tol, tol, tol, tol, float(iter_max), SLACK_FLOOR])
+        self.settings = np.array([tol, tol, tol, tol, float(iter_max), slack_floor])
         N, nv = self.N, self.nx + self.nu
         self._y = np.zeros(N * nv + self.nx)
         self._lam_dyn = np.zeros(N * self.nx)
         self._lam_c = np.zeros(N * self.nc + self.ncT)
         self._lam_y = np.zeros_like(self._y)
         self.info = OcpIpmInfo()
+        #: the addresses of the arrays every call passes (settings, then the outputs)
+        self._fixed = tuple(a.ctypes.data for a in (self.settings, self._y, self._lam_dyn,
+                                                     self._lam_c, self._lam_y))  # fmt: skip
+        self._info_ref = ctypes.byref(self.info)
 
     @classmethod
     def create(cls, dims: tuple[int, int, int, int, int], A: np.ndarray, B: np.ndarray,
-               tol: float, iter_max: int) -> RiccatiQp | None:  # fmt: skip
+               tol: float, iter_max: int, slack_floor: float = SLACK_FLOOR,
+               ) -> RiccatiQp | None:  # fmt: skip
         """The solver, or ``None`` where the C library cannot be built here."""
         lib = riccati_library()
-        return None if lib is None else cls(lib, dims, A, B, tol, iter_max)
+        return None if lib is None else cls(lib, dims, A, B, tol, iter_max, slack_floor)
 
     def __del__(self) -> None:
         handle = getattr(self, "_handle", None)
@@ -174,10 +184,9 @@ class RiccatiQp:
         the variables' bounds and ``x0`` (stage 0's state); arrays C-contiguous, float."""
         lg, ug = row_bounds
         lb, ub = bounds
-        arrays = (H, g, b, C, lg, ug, lb, ub, x0, self.settings, self._y, self._lam_dyn,
-                  self._lam_c, self._lam_y)  # fmt: skip
+        given = (H, g, b, C, lg, ug, lb, ub, x0)
         code = self.lib.ocp_ipm_solve(
-            self._handle, *(a.ctypes.data for a in arrays), ctypes.byref(self.info)
+            self._handle, *[a.ctypes.data for a in given], *self._fixed, self._info_ref
         )
         return OcpSolution(
             self._y.copy(), self._lam_dyn.copy(), self._lam_c.copy(), self._lam_y.copy(),

@@ -557,27 +557,37 @@ def _line_search(
     phi0 = lin.f + mu * viol
     slope = float(lin.grad @ d) - mu * viol
 
-    def trial(step: np.ndarray, alpha: float) -> tuple[bool, float]:
-        """Whether ``v + step`` is accepted, and its rows' violation."""
-        f1, viol1 = model.merit(v + step, p)
-        return f1 + mu * viol1 <= phi0 + ARMIJO * alpha * min(slope, 0.0), viol1
+    target = phi0 + ARMIJO * min(slope, 0.0)  # the full step's acceptance level
 
-    full, viol_full = trial(d, 1.0)
+    def trial(step: np.ndarray, alpha: float) -> tuple[bool, float, float]:
+        """Whether ``v + step`` is accepted, its rows' violation and its cost."""
+        f1, viol1 = model.merit(v + step, p)
+        return f1 + mu * viol1 <= phi0 + ARMIJO * alpha * min(slope, 0.0), viol1, f1
+
+    def worth(viol_step: float, f_step: float) -> bool:
+        """Whether a correction may turn the rejected trial accepted, where it costs a
+        whole solve (``model.correction_is_a_solve``): the rows' rise over the
+        iterate's violation is at least what the trial misses the target by otherwise."""
+        rise = mu * (viol_step - viol)
+        return not solve_each or rise >= f_step + mu * viol - target
+
+    full, viol_full, f_full = trial(d, 1.0)
     if full:
         return 1.0, None, 0
     correct = getattr(model, "correction", None)
+    solve_each = bool(getattr(model, "correction_is_a_solve", False))
     solved = 0
-    if correct is not None and viol_full > viol + min_rise:
+    if correct is not None and viol_full > viol + min_rise and worth(viol_full, f_full):
         step, viol_step = d, viol_full
         while solved < max_soc:
             soc = correct(v, step, lin, p)
             solved += 1
             if not soc.ok:
                 break
-            accepted, viol_soc = trial(soc.d, 1.0)
+            accepted, viol_soc, f_soc = trial(soc.d, 1.0)
             if accepted:
                 return 1.0, soc, solved
-            if viol_soc > KAPPA_SOC * viol_step:
+            if viol_soc > KAPPA_SOC * viol_step or not worth(viol_soc, f_soc):
                 break
             step, viol_step = soc.d, viol_soc
     alpha = BACKTRACK
