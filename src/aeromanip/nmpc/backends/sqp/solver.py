@@ -562,6 +562,7 @@ def _line_search(
     slope = float(lin.grad @ d) - mu * viol
 
     target = phi0 + ARMIJO * min(slope, 0.0)  # the full step's acceptance level
+    solve_each = bool(getattr(model, "correction_is_a_solve", False))
 
     def trial(step: np.ndarray, alpha: float) -> tuple[bool, float, float]:
         """Whether ``v + step`` is accepted, its rows' violation and its cost."""
@@ -579,7 +580,6 @@ def _line_search(
     if full:
         return 1.0, None, 0
     correct = getattr(model, "correction", None)
-    solve_each = bool(getattr(model, "correction_is_a_solve", False))
     solved = 0
     if correct is not None and viol_full > viol + min_rise and worth(viol_full, f_full):
         step, viol_step = d, viol_full
